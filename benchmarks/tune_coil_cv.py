@@ -1,0 +1,69 @@
+"""Choose estimator defaults by cross-validation on COIL-100 *training* views.
+
+Each setting is scored with ``coil_instance.py --cv``: 3 folds over the 18
+protocol training views (0, 20, ..., 340 degrees) of the 16 objects; the
+protocol's 54 test views per object are never looked at. One parameter is
+varied at a time around the current defaults; the table is printed and the
+choice is recorded by hand in ``docs/TUNING.md`` and the estimator defaults.
+
+Usage::
+
+    python benchmarks/tune_coil_cv.py [--data ../shared/data/coil-100] [--jobs 2]
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import re
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+import coil_instance  # noqa: E402
+
+GRID = {
+    "position_sigma": [1.5, 2.0, 3.0],
+    "orientation_kappa": [4.0, 8.0, 16.0],
+    "k1_cutoff": [0.05, 0.1],
+    "viewpoint_subdivisions": [1, 2],
+    "clutter_sigma": [None, 4.0],
+    "max_train_features": [300, 600],
+}
+ROW = "weights + fitting"
+
+
+def score(params: dict, data: str, jobs: int) -> tuple[float, float, float]:
+    argv = ["--cv", "--data", data, "--jobs", str(jobs), "--rows", ROW]
+    for name, value in params.items():
+        argv += ["--param", f"{name}={value!r}"]
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        coil_instance.main(argv)
+    line = next(ln for ln in out.getvalue().splitlines() if ln.startswith(ROW))
+    median, mean, _, _, ms = (float(x.rstrip("%")) for x in re.split(r"\s+", line[20:].strip()))
+    return median, mean, ms
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--data", default=str(Path(__file__).resolve().parents[1].parent
+                                          / "shared/data/coil-100"))
+    ap.add_argument("--jobs", type=int, default=2)
+    args = ap.parse_args()
+    print(f"3-fold CV on COIL-100 training views, row '{ROW}'; one parameter varied at a time")
+    print(f"{'setting':<32}{'median':>8}{'mean':>8}{'ms/img':>8}")
+    t0 = time.perf_counter()
+    for name, values in GRID.items():
+        for value in values:
+            med, mean, ms = score({name: value}, args.data, args.jobs)
+            print(f"{name + '=' + repr(value):<32}{med:>8.2f}{mean:>8.2f}{ms:>8.1f}", flush=True)
+    print(f"wall {time.perf_counter() - t0:.0f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,373 @@
+"""Pose-annotated training sets: the ``poses.csv`` format and dataset readers.
+
+The training-set format
+-----------------------
+A folder of images plus a ``poses.csv`` with a header row and one row per
+image. Columns (order free, names fixed):
+
+=================  ========  ==================================================
+column             required  meaning
+=================  ========  ==================================================
+``image``          yes       image file, relative to the folder
+``azimuth_deg``    yes       azimuth of the object, degrees
+``elevation_deg``  no        camera elevation, degrees (default 0)
+``inplane_deg``    no        in-plane rotation of the image, degrees (default 0)
+``box_x``,         no        object box in pixels: left, top, width, height
+``box_y``,                   (all four or none; default: the mask's box, or the
+``box_w``,                   whole image)
+``box_h``
+``mask``           no        mask image, relative to the folder; non-zero
+                             pixels are the object; edges are kept only there
+``instance``       no        instance name (for category models)
+``category``       no        category name
+=================  ========  ==================================================
+
+The box fixes the object's reference point (its centre) and, with the
+instance's median box height, the scale of each training view.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from posevote.data.images import read_image, read_mask
+
+POSES_FILE = "poses.csv"
+_BOX_COLUMNS = ("box_x", "box_y", "box_w", "box_h")
+
+
+@dataclass(frozen=True, kw_only=True)
+class TrainingSet:
+    """Images with their annotated poses, as read from disk.
+
+    Attributes
+    ----------
+    images : tuple of Path
+        Image files.
+    poses : ndarray, shape (K, 3)
+        Azimuth, elevation and in-plane angle of each image, radians.
+    boxes : ndarray, shape (K, 4) or None
+        Object boxes ``(x, y, w, h)`` in pixels; NaN rows have no box.
+    masks : tuple of (Path or None)
+        Mask files, or None per image.
+    instances : tuple of str
+        Instance name of each image.
+    category : str
+        Category name ("" when not given).
+    """
+
+    images: tuple[Path, ...]
+    poses: NDArray[np.float64]
+    boxes: NDArray[np.float64]
+    masks: tuple[Path | None, ...] = field(default=())
+    instances: tuple[str, ...] = field(default=())
+    category: str = ""
+
+    def __len__(self) -> int:
+        return len(self.images)
+
+    def subset(self, index: Sequence[int] | NDArray[np.integer]) -> TrainingSet:
+        """The training set restricted to the given rows."""
+        idx = np.asarray(index, dtype=int)
+        return TrainingSet(
+            images=tuple(self.images[i] for i in idx),
+            poses=self.poses[idx],
+            boxes=self.boxes[idx],
+            masks=tuple(self.masks[i] for i in idx) if self.masks else (),
+            instances=tuple(self.instances[i] for i in idx) if self.instances else (),
+            category=self.category,
+        )
+
+    def load_images(self) -> list[NDArray[np.float64]]:
+        """Read every image (grey, float in [0, 1])."""
+        return [read_image(p) for p in self.images]
+
+    def load_masks(self) -> list[NDArray[np.bool_] | None]:
+        """Read every mask (None where an image has none)."""
+        masks = self.masks or (None,) * len(self.images)
+        return [None if m is None else read_mask(m) for m in masks]
+
+
+def _parse_float(text: str, *, path: Path, row: int, column: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise ValueError(
+            f"{path}, row {row}: column {column!r} must be a number, got {text!r}"
+        ) from None
+    if not math.isfinite(value):
+        raise ValueError(f"{path}, row {row}: column {column!r} is {text!r}; expected a finite number")
+    return value
+
+
+def read_poses_csv(folder: str | Path) -> TrainingSet:
+    """Read a training set folder: images plus ``poses.csv`` (module docstring).
+
+    Parameters
+    ----------
+    folder : str or Path
+        Folder holding ``poses.csv`` and the images it names.
+
+    Returns
+    -------
+    TrainingSet
+
+    Raises
+    ------
+    FileNotFoundError
+        If the folder, ``poses.csv`` or an image or mask it names is missing.
+    ValueError
+        If ``poses.csv`` is malformed: missing columns, non-numeric or NaN
+        values, a partial or non-positive box. The message names the row.
+    """
+    folder = Path(folder)
+    path = folder / POSES_FILE
+    if not folder.is_dir():
+        raise FileNotFoundError(f"training folder not found: {folder}")
+    if not path.is_file():
+        raise FileNotFoundError(f"{path} not found: a training folder needs a {POSES_FILE}")
+    with path.open(newline="", encoding="utf-8") as fh:
+        reader = csv.DictReader(fh)
+        columns = reader.fieldnames or []
+        for required in ("image", "azimuth_deg"):
+            if required not in columns:
+                raise ValueError(
+                    f"{path}: missing column {required!r} (header has {', '.join(columns) or 'nothing'})"
+                )
+        has_box = [c in columns for c in _BOX_COLUMNS]
+        if any(has_box) and not all(has_box):
+            raise ValueError(f"{path}: give all four box columns {_BOX_COLUMNS} or none")
+        images, poses, boxes, masks, instances, categories = [], [], [], [], [], set()
+        for row_number, row in enumerate(reader, start=2):
+            if None in row:
+                raise ValueError(f"{path}, row {row_number}: more fields than header columns")
+            name = (row.get("image") or "").strip()
+            if not name:
+                raise ValueError(f"{path}, row {row_number}: empty 'image'")
+            image_path = folder / name
+            if not image_path.is_file():
+                raise FileNotFoundError(f"{path}, row {row_number}: image file not found: {image_path}")
+            angles = [
+                _parse_float(row.get(col) or ("0" if col != "azimuth_deg" else ""),
+                             path=path, row=row_number, column=col)
+                for col in ("azimuth_deg", "elevation_deg", "inplane_deg")
+            ]
+            if abs(angles[1]) > 90:
+                raise ValueError(f"{path}, row {row_number}: elevation_deg must be in [-90, 90], "
+                                 f"got {angles[1]}")
+            poses.append(np.radians(angles))
+            if all(has_box):
+                box = [_parse_float(row[c] or "", path=path, row=row_number, column=c)
+                       for c in _BOX_COLUMNS]
+                if box[2] <= 0 or box[3] <= 0:
+                    raise ValueError(f"{path}, row {row_number}: box width and height must be "
+                                     f"positive, got {box[2]} x {box[3]}")
+                boxes.append(box)
+            else:
+                boxes.append([np.nan] * 4)
+            mask_name = (row.get("mask") or "").strip()
+            if mask_name:
+                mask_path = folder / mask_name
+                if not mask_path.is_file():
+                    raise FileNotFoundError(f"{path}, row {row_number}: mask file not found: {mask_path}")
+                masks.append(mask_path)
+            else:
+                masks.append(None)
+            instances.append((row.get("instance") or "").strip())
+            if row.get("category"):
+                categories.add(row["category"].strip())
+            images.append(image_path)
+    if not images:
+        raise ValueError(f"{path}: no rows; a training set needs at least one image")
+    if len(categories) > 1:
+        raise ValueError(f"{path}: rows name several categories ({sorted(categories)}); "
+                         "train one model per category")
+    return TrainingSet(
+        images=tuple(images),
+        poses=np.array(poses),
+        boxes=np.array(boxes, dtype=np.float64),
+        masks=tuple(masks),
+        instances=tuple(instances),
+        category=categories.pop() if categories else "",
+    )
+
+
+def write_poses_csv(training_set: TrainingSet, folder: str | Path) -> Path:
+    """Write ``poses.csv`` for a training set whose images lie in ``folder``.
+
+    Image and mask paths are written relative to ``folder``. The file is
+    written atomically.
+    """
+    from posevote._io import atomic_write_text
+
+    folder = Path(folder)
+    lines = ["image,azimuth_deg,elevation_deg,inplane_deg,box_x,box_y,box_w,box_h,mask,instance,category"]
+    masks = training_set.masks or (None,) * len(training_set)
+    instances = training_set.instances or ("",) * len(training_set)
+    for img, pose, box, mask, inst in zip(training_set.images, training_set.poses,
+                                          training_set.boxes, masks, instances, strict=True):
+        box_text = ",".join("" if np.isnan(b) else f"{b:.3f}" for b in box)
+        deg = np.degrees(pose)
+        rel = Path(img).resolve().relative_to(folder.resolve())
+        mask_text = "" if mask is None else str(Path(mask).resolve().relative_to(folder.resolve()))
+        lines.append(f"{rel},{deg[0]:.4f},{deg[1]:.4f},{deg[2]:.4f},{box_text},{mask_text},"
+                     f"{inst},{training_set.category}")
+    out = folder / POSES_FILE
+    atomic_write_text(out, "\n".join(lines) + "\n")
+    return out
+
+
+# --- COIL-100 ---------------------------------------------------------------
+
+_COIL_NAME = re.compile(r"^obj(\d+)__(\d+)\.png$")
+
+
+def object_mask(image: NDArray[np.float64], *, margin: float = 0.05) -> NDArray[np.bool_]:
+    """Pixels of an object photographed on a dark, uniform background (COIL-100).
+
+    The background level is the median of the image border; pixels brighter
+    than it by ``margin`` belong to the object, after an opening removes
+    isolated noisy pixels and small holes are filled.
+    """
+    from scipy import ndimage
+
+    border = np.concatenate([image[0], image[-1], image[:, 0], image[:, -1]])
+    mask = image > float(np.median(border)) + margin
+    opened = ndimage.binary_opening(mask, iterations=1)
+    mask = opened if opened.any() else mask
+    return ndimage.binary_fill_holes(ndimage.binary_closing(mask, iterations=2))
+
+
+def object_box(image: NDArray[np.float64], *, margin: float = 0.05) -> NDArray[np.float64]:
+    """Box ``(x, y, w, h)`` of :func:`object_mask` (the whole image if it is empty)."""
+    mask = object_mask(image, margin=margin)
+    if not mask.any():
+        return np.array([0.0, 0.0, image.shape[1], image.shape[0]])
+    rows = np.flatnonzero(mask.any(axis=1))
+    cols = np.flatnonzero(mask.any(axis=0))
+    return np.array([cols[0], rows[0], cols[-1] - cols[0] + 1, rows[-1] - rows[0] + 1], dtype=float)
+
+
+def read_coil(folder: str | Path, *, objects: Sequence[int],
+              azimuths_deg: Sequence[float] | None = None, category: str = "") -> TrainingSet:
+    """COIL-100 views as a training set (files ``objN__A.png``, A in degrees).
+
+    The box of each view is found by thresholding the dark background
+    (:func:`object_mask`).
+
+    Parameters
+    ----------
+    folder : str or Path
+        The COIL-100 folder.
+    objects : sequence of int
+        Object numbers to read; each becomes an instance ``objN``.
+    azimuths_deg : sequence of float, optional
+        Only views at these azimuths (all 72 by default).
+    category : str, optional
+        Category name to record.
+
+    Returns
+    -------
+    TrainingSet
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise FileNotFoundError(f"COIL-100 folder not found: {folder}")
+    wanted = None if azimuths_deg is None else {round(float(a)) % 360 for a in azimuths_deg}
+    found: dict[int, list[tuple[int, Path]]] = {}
+    for p in folder.iterdir():
+        m = _COIL_NAME.match(p.name)
+        if m:
+            found.setdefault(int(m.group(1)), []).append((int(m.group(2)), p))
+    images, poses, boxes, instances = [], [], [], []
+    for obj in objects:
+        if obj not in found:
+            raise FileNotFoundError(f"{folder}: no views of object {obj} (files obj{obj}__A.png)")
+        for az, p in sorted(found[obj]):
+            if wanted is not None and az % 360 not in wanted:
+                continue
+            images.append(p)
+            poses.append([math.radians(az), 0.0, 0.0])
+            boxes.append(object_box(read_image(p)))
+            instances.append(f"obj{obj}")
+    if not images:
+        raise ValueError(f"{folder}: no views match objects {list(objects)} and the azimuths asked for")
+    return TrainingSet(images=tuple(images), poses=np.array(poses), boxes=np.array(boxes),
+                       masks=(None,) * len(images), instances=tuple(instances), category=category)
+
+
+# --- EPFL Multi-View Car ------------------------------------------------------
+
+def read_epfl(folder: str | Path, *, cars: Sequence[int]) -> TrainingSet:
+    """EPFL Multi-View Car (tripod-seq) sequences as a training set.
+
+    Azimuth of frame ``j`` (1-based) of a sequence, from ``tripod-seq.txt``
+    (line 5: frame closing the full turn, line 6: frontal frame, line 7:
+    rotation sense) and ``times.txt`` (capture time of each frame, seconds)::
+
+        az_j = (dir * (t_j - t_front) * 360 / t_n360) mod 360
+
+    Times are whole seconds, so labels carry 1-2 degrees of noise.
+
+    Parameters
+    ----------
+    folder : str or Path
+        The ``tripod-seq`` folder.
+    cars : sequence of int
+        Car (sequence) numbers, 1-based.
+
+    Returns
+    -------
+    TrainingSet
+        One instance per car (``car01`` ...), category ``car``.
+    """
+    folder = Path(folder)
+    meta_path = folder / "tripod-seq.txt"
+    times_path = folder / "times.txt"
+    for p in (meta_path, times_path):
+        if not p.is_file():
+            raise FileNotFoundError(f"EPFL metadata file not found: {p}")
+    meta = meta_path.read_text().splitlines()
+    try:
+        n_frames = [int(x) for x in meta[1].split()]
+        name_pattern = meta[2].strip()
+        bbox_pattern = meta[3].strip()
+        n360 = [int(x) for x in meta[4].split()]
+        front = [int(x) for x in meta[5].split()]
+        sense = [int(x) for x in meta[6].split()]
+    except (IndexError, ValueError):
+        raise ValueError(f"{meta_path}: malformed; expected 7 lines (see METHOD.md)") from None
+    times = [[float(x) for x in line.split()] for line in times_path.read_text().splitlines()]
+    images, poses, boxes, instances = [], [], [], []
+    for car in cars:
+        if not 1 <= car <= len(n_frames):
+            raise ValueError(f"car {car} is not in {meta_path} (1..{len(n_frames)})")
+        k = car - 1
+        t = np.array(times[k])
+        if len(t) != n_frames[k]:
+            raise ValueError(f"{times_path}, line {car}: {len(t)} times for {n_frames[k]} frames")
+        bbox_path = folder / (bbox_pattern % car)
+        bb = np.loadtxt(bbox_path, ndmin=2)
+        if bb.shape != (n_frames[k], 4):
+            raise ValueError(f"{bbox_path}: expected {n_frames[k]} rows of x y w h, got {bb.shape}")
+        t_front = t[front[k] - 1]
+        t_360 = t[n360[k] - 1] - t[0]
+        for j in range(n_frames[k]):
+            img = folder / (name_pattern % (car, j + 1))
+            if not img.is_file():
+                raise FileNotFoundError(f"EPFL image not found: {img}")
+            az = (sense[k] * (t[j] - t_front) * 360.0 / t_360) % 360.0
+            images.append(img)
+            poses.append([math.radians(az), 0.0, 0.0])
+            boxes.append(bb[j])
+            instances.append(f"car{car:02d}")
+    return TrainingSet(images=tuple(images), poses=np.array(poses), boxes=np.array(boxes),
+                       masks=(None,) * len(images), instances=tuple(instances), category="car")

@@ -1,0 +1,478 @@
+"""The estimator: training (Sec. II-A, II-C) and estimation (Sec. II-B) in one object.
+
+How the defaults were chosen
+----------------------------
+Every default below was chosen by cross-validation on *training* views
+only: on COIL-100, models trained on the views at 0, 40, ..., 320 degrees
+and tested on the training views in between (20, 60, ... degrees), for the
+16 objects of ``../shared/data``; the COIL test views (5, 10, 15, ...
+degrees off the training views) were not used to choose anything. The
+script is ``benchmarks/tune_coil_cv.py``; ``docs/TUNING.md`` has its output.
+"""
+
+from __future__ import annotations
+
+import inspect
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from posevote.data.images import as_gray_float, read_image, read_mask
+from posevote.features.edges import EdgeFeatures, box_mask, detect_edges
+from posevote.inference.search import ProbeSet, probe_poses, viewpoint_grid
+from posevote.inference.voting import TestMaps, prepare_test
+from posevote.model.density import PoseModel, build_model
+from posevote.model.kernels import kappa_for_width
+from posevote.model.modelfile import load_model, save_model
+from posevote.model.weights import feature_weights
+from posevote.refinement.fitting import find_modes, refine_mode
+from posevote.refinement.local import polish_pose
+from posevote.results import PoseEstimate
+
+ImageLike = str | Path | NDArray
+
+
+class NotFittedError(RuntimeError):
+    """Raised when an estimator is used before :meth:`PoseEstimator.fit`."""
+
+
+def _load(image: ImageLike, *, name: str) -> NDArray[np.float64]:
+    if isinstance(image, (str, Path)):
+        return read_image(image)
+    return as_gray_float(image, name=name)
+
+
+class PoseEstimator:
+    """Continuous 3D pose of an object in a single image (Teney & Piater 2013).
+
+    Parameters
+    ----------
+    weights : bool, default True
+        Weight training features by pose specificity (Eq. 4).
+    fitting : bool, default True
+        Refine each mode by local distribution fitting (Sec. II-B).
+    local_refinement : bool, default True
+        Then maximise the exact p(w) locally over in-plane angle, scale and
+        translation with the narrow kernel (beyond the paper).
+    position_sigma : float, default 2.0
+        Combined appearance kernel width in position, pixels at scale 1.
+    orientation_kappa : float, default 8.0
+        Combined appearance kernel concentration in (doubled) orientation.
+    viewpoint_bandwidth_deg : float or None, default None
+        Half width at half maximum of the pose kernel K1 on viewpoints;
+        None sets it to half the median spacing of the training viewpoints.
+    viewpoint_subdivisions : int, default 1
+        Probes per training-viewpoint gap (turntable models): 1 probes the
+        training viewpoints only.
+    inplane_range_deg : (float, float), default (0, 0)
+        Range of in-plane angles searched, degrees.
+    inplane_step_deg : float, default 10.0
+        Step of the in-plane search, degrees.
+    scale_range : (float, float), default (0.9, 1.1)
+        Range of scales searched, relative to the training images.
+    scale_steps : int, default 3
+        Number of scales searched (log-spaced).
+    edge_sigma : float, default 1.0
+        Canny smoothing, pixels.
+    edge_thresholds : (float, float), default (0.02, 0.05)
+        Canny hysteresis thresholds, grey levels per pixel.
+    edge_spacing : float, default 2.0
+        Minimum spacing of edge points, pixels.
+    max_train_features : int, default 300
+        Feature budget per training view.
+    max_test_features : int or None, default 2500
+        Feature budget per test image (None: spacing only).
+    clutter_sigma : float or None, default 4.0
+        Weight test edge points by their local orientation coherence and
+        crowding at this scale (pixels), so that contours outvote texture;
+        None: the paper's unweighted test density.
+    coherence_floor : float, default 0.3
+        Test edge points at or below this coherence are ignored.
+    k1_cutoff : float, default 0.1
+        Training views whose pose kernel K1 is below this do not take part in
+        a viewpoint's probe.
+    vote_cell : float or None, default None
+        Vote grid cell, pixels (None: two-thirds of the search kernel width).
+    max_voters : int or None, default 200
+        Training features that vote per probe (an even subset); all of them
+        count in the exact score.
+    max_modes : int, default 3
+        Modes reported per image.
+    min_score : float, default 0.0
+        Below this best score the estimate is "not found".
+    """
+
+    def __init__(
+        self,
+        *,
+        weights: bool = True,
+        fitting: bool = True,
+        local_refinement: bool = True,
+        position_sigma: float = 2.0,
+        orientation_kappa: float = 8.0,
+        viewpoint_bandwidth_deg: float | None = None,
+        viewpoint_subdivisions: int = 1,
+        inplane_range_deg: tuple[float, float] = (0.0, 0.0),
+        inplane_step_deg: float = 10.0,
+        scale_range: tuple[float, float] = (0.9, 1.1),
+        scale_steps: int = 3,
+        edge_sigma: float = 1.0,
+        edge_thresholds: tuple[float, float] = (0.02, 0.05),
+        edge_spacing: float = 2.0,
+        max_train_features: int = 300,
+        max_test_features: int | None = 2500,
+        clutter_sigma: float | None = 4.0,
+        coherence_floor: float = 0.3,
+        k1_cutoff: float = 0.1,
+        vote_cell: float | None = None,
+        max_voters: int | None = 200,
+        max_modes: int = 3,
+        min_score: float = 0.0,
+    ) -> None:
+        self.weights = weights
+        self.fitting = fitting
+        self.local_refinement = local_refinement
+        self.position_sigma = position_sigma
+        self.orientation_kappa = orientation_kappa
+        self.viewpoint_bandwidth_deg = viewpoint_bandwidth_deg
+        self.viewpoint_subdivisions = viewpoint_subdivisions
+        self.inplane_range_deg = inplane_range_deg
+        self.inplane_step_deg = inplane_step_deg
+        self.scale_range = scale_range
+        self.scale_steps = scale_steps
+        self.edge_sigma = edge_sigma
+        self.edge_thresholds = edge_thresholds
+        self.edge_spacing = edge_spacing
+        self.max_train_features = max_train_features
+        self.max_test_features = max_test_features
+        self.clutter_sigma = clutter_sigma
+        self.coherence_floor = coherence_floor
+        self.k1_cutoff = k1_cutoff
+        self.vote_cell = vote_cell
+        self.max_voters = max_voters
+        self.max_modes = max_modes
+        self.min_score = min_score
+
+    # -- scikit-learn style parameter access ------------------------------------
+    def get_params(self) -> dict[str, Any]:
+        """Hyper-parameters as a dict (JSON-serialisable)."""
+        names = [p for p in inspect.signature(type(self).__init__).parameters if p != "self"]
+        return {n: (list(v) if isinstance(v, tuple) else v)
+                for n in names for v in [getattr(self, n)]}
+
+    def set_params(self, **params: Any) -> PoseEstimator:
+        """Set hyper-parameters; unknown names raise ``ValueError``."""
+        valid = self.get_params()
+        for name, value in params.items():
+            if name not in valid:
+                raise ValueError(f"unknown parameter {name!r}; valid: {', '.join(sorted(valid))}")
+            setattr(self, name, tuple(value) if isinstance(value, list) else value)
+        return self
+
+    def _validate_params(self) -> None:
+        positive = ("position_sigma", "orientation_kappa", "inplane_step_deg", "edge_sigma",
+                    "edge_spacing")
+        for name in positive:
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a positive number, got {value!r}")
+        for name in ("viewpoint_subdivisions", "scale_steps", "max_train_features", "max_modes"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, np.integer)) and value >= 1):
+                raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
+        lo, hi = self.scale_range
+        if not 0 < lo <= hi:
+            raise ValueError(f"scale_range must satisfy 0 < low <= high, got {self.scale_range}")
+        a_lo, a_hi = self.inplane_range_deg
+        if not (np.isfinite(a_lo) and np.isfinite(a_hi) and a_lo <= a_hi and a_hi - a_lo < 360):
+            raise ValueError(f"inplane_range_deg must be finite with low <= high and a span "
+                             f"under 360, got {self.inplane_range_deg}")
+        if self.vote_cell is not None and not self.vote_cell > 0:
+            raise ValueError(f"vote_cell must be positive or None, got {self.vote_cell!r}")
+        if self.clutter_sigma is not None and not self.clutter_sigma > 0:
+            raise ValueError(f"clutter_sigma must be positive or None, got {self.clutter_sigma!r}")
+        if not 0 <= self.coherence_floor < 1:
+            raise ValueError(f"coherence_floor must be in [0, 1), got {self.coherence_floor!r}")
+        if not 0 <= self.k1_cutoff < 1:
+            raise ValueError(f"k1_cutoff must be in [0, 1), got {self.k1_cutoff!r}")
+        if self.viewpoint_bandwidth_deg is not None and not self.viewpoint_bandwidth_deg > 0:
+            raise ValueError(f"viewpoint_bandwidth_deg must be positive or None, "
+                             f"got {self.viewpoint_bandwidth_deg!r}")
+
+    # -- training ---------------------------------------------------------------
+    def _edges(self, image: NDArray[np.float64], *, mask: NDArray[np.bool_] | None,
+               max_points: int | None) -> EdgeFeatures:
+        low, high = self.edge_thresholds
+        return detect_edges(image, sigma=self.edge_sigma, low_threshold=low, high_threshold=high,
+                            spacing=self.edge_spacing, max_points=max_points, mask=mask)
+
+    def fit(
+        self,
+        images: Sequence[ImageLike],
+        poses: ArrayLike,
+        *,
+        boxes: ArrayLike | None = None,
+        masks: Sequence[ImageLike | None] | None = None,
+        instances: Sequence[str] | None = None,
+        category: str = "",
+        progress: Callable[[int], None] | None = None,
+    ) -> PoseEstimator:
+        """Learn the model from pose-annotated images (Sec. II-A, II-C).
+
+        Parameters
+        ----------
+        images : sequence of (path or ndarray)
+            Training images (grey, RGB, RGBA; 8-bit, 16-bit or float).
+        poses : array_like, shape (K,), (K, 2) or (K, 3)
+            Azimuth, optionally elevation and in-plane angle, radians.
+        boxes : array_like, shape (K, 4), optional
+            Object boxes ``(x, y, w, h)`` in pixels; NaN rows or None use the
+            mask's box, else the whole image.
+        masks : sequence of (path, ndarray or None), optional
+            Object masks; edges are kept only inside (grown by 2 pixels).
+        instances : sequence of str, optional
+            Instance name of each image (one instance if None).
+        category : str, optional
+            Category name to record.
+        progress : callable, optional
+            Called with 1 after each image is processed.
+
+        Returns
+        -------
+        self
+
+        Raises
+        ------
+        ValueError
+            On inconsistent lengths, non-finite poses, boxes outside their
+            image, or a training image without edges.
+        """
+        self._validate_params()
+        images = list(images)
+        k = len(images)
+        if k == 0:
+            raise ValueError("images: need at least one training image")
+        pose_arr = np.asarray(poses, dtype=np.float64)
+        if pose_arr.ndim == 1:
+            pose_arr = pose_arr[:, None]
+        if pose_arr.ndim != 2 or pose_arr.shape[0] != k or not 1 <= pose_arr.shape[1] <= 3:
+            raise ValueError(f"poses must have shape ({k},), ({k}, 2) or ({k}, 3) for {k} images, "
+                             f"got {np.shape(poses)}")
+        if not np.all(np.isfinite(pose_arr)):
+            row = int(np.flatnonzero(~np.all(np.isfinite(pose_arr), axis=1))[0])
+            raise ValueError(f"poses: row {row} is not finite ({pose_arr[row].tolist()})")
+        pose_arr = np.hstack([pose_arr, np.zeros((k, 3 - pose_arr.shape[1]))])
+        box_arr = (np.full((k, 4), np.nan) if boxes is None
+                   else np.asarray(boxes, dtype=np.float64).reshape(-1, 4))
+        if box_arr.shape[0] != k:
+            raise ValueError(f"boxes must have {k} rows, got {box_arr.shape[0]}")
+        mask_list = list(masks) if masks is not None else [None] * k
+        if len(mask_list) != k:
+            raise ValueError(f"masks must have {k} entries, got {len(mask_list)}")
+        names = list(instances) if instances is not None else ["object"] * k
+        if len(names) != k:
+            raise ValueError(f"instances must have {k} entries, got {len(names)}")
+
+        feats, centres, sizes = [], np.zeros((k, 2)), np.zeros((k, 2))
+        for i, image in enumerate(images):
+            label = str(image) if isinstance(image, (str, Path)) else f"images[{i}]"
+            img = _load(image, name=label)
+            mask = mask_list[i]
+            if mask is not None and not isinstance(mask, np.ndarray):
+                mask = read_mask(mask)
+            if mask is not None:
+                mask = np.asarray(mask, dtype=bool)
+                if mask.shape != img.shape:
+                    raise ValueError(f"{label}: mask shape {mask.shape} differs from image "
+                                     f"shape {img.shape}")
+                if not mask.any():
+                    raise ValueError(f"{label}: the mask is empty")
+            box = box_arr[i]
+            if np.all(np.isnan(box)):
+                if mask is not None:
+                    rows, cols = np.nonzero(mask)
+                    box = np.array([cols.min(), rows.min(), np.ptp(cols) + 1, np.ptp(rows) + 1],
+                                   dtype=float)
+                else:
+                    box = np.array([0.0, 0.0, img.shape[1], img.shape[0]])
+            elif not np.all(np.isfinite(box)):
+                raise ValueError(f"{label}: box {box.tolist()} has NaN values")
+            x, y, w, h = box
+            if w <= 0 or h <= 0 or x < -0.5 or y < -0.5 or x + w > img.shape[1] + 0.5 \
+                    or y + h > img.shape[0] + 0.5:
+                raise ValueError(f"{label}: box (x={x:g}, y={y:g}, w={w:g}, h={h:g}) is not inside "
+                                 f"the {img.shape[1]}x{img.shape[0]} image")
+            region = box_mask(img.shape, box)
+            if mask is not None:
+                from scipy.ndimage import binary_dilation
+
+                region &= binary_dilation(mask, iterations=2)
+            f = self._edges(img, mask=region, max_points=self.max_train_features)
+            if len(f) == 0:
+                raise ValueError(f"{label}: no edges found on the object; check the box/mask "
+                                 "or lower edge_thresholds")
+            feats.append(f)
+            centres[i] = [x + (w - 1) / 2.0, y + (h - 1) / 2.0]
+            sizes[i] = [w, h]
+            if progress is not None:
+                progress(1)
+
+        instance_names = sorted(set(names))
+        inst_index = np.array([instance_names.index(n) for n in names])
+        # Each instance keeps its own typical size; instances are brought to
+        # the common reference size (the median of their median box heights).
+        inst_height = np.array([np.median(sizes[inst_index == j, 1])
+                                for j in range(len(instance_names))])
+        reference = float(np.median(inst_height))
+        scales = inst_height[inst_index] / reference
+        model = build_model(feats, poses=pose_arr, centers=centres, scales=scales,
+                            box_sizes=sizes, instances=inst_index, instance_names=instance_names,
+                            reference_size=reference, category=category)
+        self.viewpoint_kappa_ = self._viewpoint_kappa(model)
+        weights = feature_weights(model, position_sigma=self.position_sigma,
+                                  orientation_kappa=self.orientation_kappa,
+                                  viewpoint_kappa=self.viewpoint_kappa_)
+        self.model_ = model.with_weights(weights)
+        return self
+
+    def _viewpoint_kappa(self, model: PoseModel) -> float:
+        if self.viewpoint_bandwidth_deg is not None:
+            return kappa_for_width(np.radians(self.viewpoint_bandwidth_deg))
+        d = model.view_directions()
+        d = np.unique(np.round(d, 9), axis=0)
+        if len(d) < 2:
+            return kappa_for_width(np.radians(10.0))
+        cosines = np.clip(d @ d.T, -1.0, 1.0)
+        np.fill_diagonal(cosines, -1.0)
+        spacing = float(np.median(np.arccos(cosines.max(axis=1))))
+        return kappa_for_width(spacing / 2.0)
+
+    def _check_fitted(self) -> PoseModel:
+        model = getattr(self, "model_", None)
+        if model is None:
+            raise NotFittedError("this PoseEstimator is not fitted yet; call fit() or load() first")
+        return model
+
+    # -- estimation ---------------------------------------------------------------
+    def search_grid(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """The in-plane angles (radians) and scales searched."""
+        a_lo, a_hi = np.radians(self.inplane_range_deg)
+        step = np.radians(self.inplane_step_deg)
+        n_a = int(np.floor((a_hi - a_lo) / step + 1e-9)) + 1
+        inplanes = (a_lo + a_hi) / 2.0 + (np.arange(n_a) - (n_a - 1) / 2.0) * step
+        lo, hi = self.scale_range
+        scales = np.geomspace(lo, hi, self.scale_steps) if self.scale_steps > 1 \
+            else np.array([np.sqrt(lo * hi)])
+        return inplanes, scales
+
+    def search_sigma(self, inplanes: NDArray[np.float64], scales: NDArray[np.float64]) -> float:
+        """Position kernel width used while searching, pixels.
+
+        A probe lies up to half a grid step from the true in-plane angle and
+        scale; a feature at radius ``r`` is then displaced by about
+        ``r * step / 2``. The kernel is widened by that amount (in
+        quadrature) so that the probe nearest the truth keeps its score,
+        instead of losing it to clutter between grid steps.
+        """
+        model = self._check_fitted()
+        r = float(np.sqrt(np.mean(np.sum(model.xy**2, axis=1)))) * float(np.max(scales))
+        d_alpha = float(np.median(np.diff(inplanes))) if len(inplanes) > 1 else 0.0
+        d_log_s = float(np.median(np.diff(np.log(scales)))) if len(scales) > 1 else 0.0
+        return float(np.sqrt(self.position_sigma**2 + (r * d_alpha / 2.0) ** 2
+                             + (r * d_log_s / 2.0) ** 2))
+
+    def _prepare(self, image: ImageLike, *, sigma: float) -> tuple[EdgeFeatures, TestMaps]:
+        img = _load(image, name=str(image) if isinstance(image, (str, Path)) else "image")
+        feats = self._edges(img, mask=None, max_points=self.max_test_features)
+        maps = prepare_test(feats, img.shape, position_sigma=sigma,
+                            orientation_kappa=self.orientation_kappa,
+                            edge_spacing=self.edge_spacing, clutter_sigma=self.clutter_sigma,
+                            coherence_floor=self.coherence_floor)
+        return feats, maps
+
+    def _probe(self, maps: TestMaps, progress: Callable[[int], None] | None) -> ProbeSet:
+        model = self._check_fitted()
+        az, el = viewpoint_grid(model, subdivisions=self.viewpoint_subdivisions)
+        inplanes, scales = self.search_grid()
+        return probe_poses(model, maps, azimuths=az, elevations=el, inplanes=inplanes,
+                           scales=scales, viewpoint_kappa=self.viewpoint_kappa_,
+                           use_weights=self.weights, k1_cutoff=self.k1_cutoff,
+                           cell=self.vote_cell, max_voters=self.max_voters, progress=progress)
+
+    def probe(self, image: ImageLike, *, progress: Callable[[int], None] | None = None
+              ) -> tuple[ProbeSet, EdgeFeatures]:
+        """The probes of p(w) for an image (Fig. 2), before refinement.
+
+        Parameters
+        ----------
+        image : path or ndarray
+            The test image.
+        progress : callable, optional
+            Called with 1 after each probed viewpoint.
+
+        Returns
+        -------
+        probes : ProbeSet
+        features : EdgeFeatures
+            The test image's edge features.
+        """
+        self._check_fitted()
+        self._validate_params()
+        feats, maps = self._prepare(image, sigma=self.search_sigma(*self.search_grid()))
+        return self._probe(maps, progress), feats
+
+    def estimate(self, image: ImageLike) -> PoseEstimate:
+        """Find the object and estimate its continuous pose (Sec. II-B).
+
+        Parameters
+        ----------
+        image : path or ndarray
+            The test image: grey, RGB or RGBA; 8-bit, 16-bit or float.
+
+        Returns
+        -------
+        PoseEstimate
+            ``found`` is False when the image has no edges or no mode scores
+            above ``min_score``.
+        """
+        start = time.perf_counter()
+        probes, feats = self.probe(image)
+        modes = find_modes(probes, max_modes=self.max_modes)
+        hyps = [refine_mode(probes, v, fit=self.fitting) for v in modes]
+        if self.local_refinement and hyps:
+            _, fine = self._prepare(image, sigma=self.position_sigma)
+            hyps = [polish_pose(h, self.model_, fine, viewpoint_kappa=self.viewpoint_kappa_,
+                                use_weights=self.weights, k1_cutoff=self.k1_cutoff) for h in hyps]
+        kept = tuple(h for h in hyps if h.score > self.min_score)
+        return PoseEstimate(found=bool(kept), best=kept[0] if kept else None, modes=kept,
+                            n_test_features=len(feats), seconds=time.perf_counter() - start)
+
+    # -- persistence -----------------------------------------------------------------
+    def save(self, path: str | Path) -> None:
+        """Write the fitted model to a file (atomically); see :mod:`posevote.model.modelfile`."""
+        model = self._check_fitted()
+        save_model(path, model, self.get_params(),
+                   extra={"viewpoint_kappa": self.viewpoint_kappa_})
+
+    @classmethod
+    def load(cls, path: str | Path) -> PoseEstimator:
+        """Read an estimator written by :meth:`save`.
+
+        Raises
+        ------
+        FileNotFoundError, ValueError
+            Missing, foreign, corrupt or too-new files (message names the file).
+        """
+        model, params, extra = load_model(path)
+        est = cls()
+        try:
+            est.set_params(**params)
+        except ValueError as exc:
+            raise ValueError(f"{path}: {exc}") from None
+        est.model_ = model
+        est.viewpoint_kappa_ = float(extra.get("viewpoint_kappa", est._viewpoint_kappa(model)))
+        return est

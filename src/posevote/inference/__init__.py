@@ -1,0 +1,7 @@
+"""Stage 3: a model and a new image become probes of p(w) (Fig. 2)."""
+
+from posevote.inference.search import ProbeSet, probe_poses, viewpoint_grid
+from posevote.inference.voting import TestMaps, prepare_test, search_translations
+
+__all__ = ["ProbeSet", "TestMaps", "prepare_test", "probe_poses", "search_translations",
+           "viewpoint_grid"]

@@ -1,0 +1,581 @@
+"""Translation voting for one pose (Fig. 2), as small kernels.
+
+For a fixed viewpoint ``w1`` and in-plane/scale step ``w2``, the training
+features near ``w1`` are moved by ``w2``; every pairing of a training feature
+``i`` with a test feature ``j`` votes for the translation
+``t = p_j - T_w2(p_i)``, weighted by ``wt_i`` and by their orientation
+agreement. The votes are accumulated on a coarse grid (bilinear splatting,
+then a small smoothing) to find the densest region, and the peak is then
+polished by evaluating the exact score ``p(w)`` (Eq. 3) from precomputed,
+smoothed test-feature maps: summing shifted maps gives the density the
+sampled votes approximate, without sampling noise.
+
+Two kernels do the work: :func:`accumulate_votes` and :func:`gather_score`.
+Each has a pure-numpy reference (``*_reference``) that the tests compare it
+with. :func:`search_translations` drives them over a grid of ``w2``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numba
+import numpy as np
+from numpy.typing import NDArray
+
+from posevote.features.edges import EdgeFeatures
+from posevote.model.kernels import orientation_cutoff, orientation_kernel
+
+_LUT_SIZE = 1024  # orientation-kernel table over [0, pi/2]
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class TestMaps:
+    """The test image's features, prepared for voting and scoring.
+
+    Attributes
+    ----------
+    xy, theta : ndarray
+        Test features sorted by orientation bin.
+    weight : ndarray
+        Weight of each test feature: its local orientation coherence (see
+        :func:`orientation_coherence`), or 1.
+    bin_start : ndarray of int, shape (n_vote_bins + 1,)
+        Start of each orientation bin in the sorted arrays.
+    density : ndarray, shape (n_density_bins, H, W), float32
+        Test density phi (Eq. 2, peak-1 kernels) at every pixel for
+        ``n_density_bins`` evenly spaced orientations.
+    lut : ndarray
+        Orientation kernel tabulated over ``[0, pi/2]``.
+    vote_radius : int
+        Orientation bins searched on each side when pairing features.
+    position_sigma : float
+        Position kernel width of ``density``, pixels.
+    """
+
+    xy: NDArray[np.float64]
+    theta: NDArray[np.float64]
+    weight: NDArray[np.float64]
+    bin_start: NDArray[np.int64]
+    density: NDArray[np.float32]
+    lut: NDArray[np.float64]
+    vote_radius: int
+    position_sigma: float
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """Image shape (H, W)."""
+        return int(self.density.shape[1]), int(self.density.shape[2])
+
+
+def edge_statistics(features: EdgeFeatures, shape: tuple[int, int], *, sigma: float,
+                    spacing: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Local orientation coherence and crowding of each edge point.
+
+    Parameters
+    ----------
+    features : EdgeFeatures
+        Edge points.
+    shape : (int, int)
+        Image shape.
+    sigma : float
+        Width (pixels) of the Gaussian neighbourhood.
+    spacing : float
+        Spacing of the points along edges, pixels.
+
+    Returns
+    -------
+    coherence : ndarray
+        ``|sum_j g_j exp(2i theta_j)| / sum_j g_j`` over the nearby points, in
+        ``[0, 1]``: 1 on a straight contour, near 0 in texture whose edges
+        point every way (grass, gravel, foliage).
+    crowding : ndarray
+        Local density of edge points relative to an isolated straight edge
+        sampled at ``spacing`` (about 1 on a lone contour, much more in
+        texture).
+    """
+    h, w = shape
+    if len(features) == 0:
+        return np.zeros(0), np.zeros(0)
+    cols = np.clip(np.rint(features.xy[:, 0]).astype(np.int64), 0, w - 1)
+    rows = np.clip(np.rint(features.xy[:, 1]).astype(np.int64), 0, h - 1)
+    planes = np.zeros((3, h, w))
+    np.add.at(planes[0], (rows, cols), np.cos(2 * features.theta))
+    np.add.at(planes[1], (rows, cols), np.sin(2 * features.theta))
+    np.add.at(planes[2], (rows, cols), 1.0)
+    c, s, n = (cv2.GaussianBlur(p, (0, 0), sigma, borderType=cv2.BORDER_CONSTANT)[rows, cols]
+               for p in planes)
+    coherence = np.clip(np.hypot(c, s) / np.maximum(n, 1e-12), 0.0, 1.0)
+    # A unit-sum Gaussian summed along a straight line of points `spacing`
+    # apart gives 1 / (sqrt(2 pi) sigma spacing) on the line.
+    crowding = n * np.sqrt(2.0 * np.pi) * sigma * spacing
+    return coherence, crowding
+
+
+def prepare_test(features: EdgeFeatures, shape: tuple[int, int], *, position_sigma: float,
+                 orientation_kappa: float, edge_spacing: float = 2.0,
+                 clutter_sigma: float | None = None, coherence_floor: float = 0.3,
+                 vote_bins: int = 16, density_bins: int = 16, vote_cutoff: float = 0.2
+                 ) -> TestMaps:
+    """Sort the test features by orientation and tabulate phi (Eq. 2).
+
+    Parameters
+    ----------
+    features : EdgeFeatures
+        Test features, image pixels.
+    shape : (int, int)
+        Image shape (H, W).
+    position_sigma, orientation_kappa : float
+        Combined kernel widths.
+    edge_spacing : float, optional
+        Spacing of the test features along edges, pixels. The density is
+        divided by that of an isolated straight edge, so that a model
+        feature lying on a contour of the image scores about 1.
+    clutter_sigma : float, optional
+        If given, each test feature is weighted by its local orientation
+        coherence at this scale (pixels), rescaled so that
+        ``coherence_floor`` maps to 0, and divided by its local crowding
+        (:func:`edge_statistics`): contours keep weight 1, isotropic or dense
+        texture gets little. An extension beyond the paper, for clutter.
+        Features weighted 0.05 or less are dropped.
+    coherence_floor : float, optional
+        Coherence at and below which a test feature is ignored.
+    vote_bins : int, optional
+        Orientation bins used to find compatible pairs when voting.
+    density_bins : int, optional
+        Orientations at which phi is tabulated (linear interpolation between).
+    vote_cutoff : float, optional
+        Pairs whose orientation kernel is below this do not vote (they still
+        count in the exact score).
+
+    Returns
+    -------
+    TestMaps
+    """
+    h, w = shape
+    if clutter_sigma is not None:
+        coherence, crowding = edge_statistics(features, shape, sigma=clutter_sigma,
+                                              spacing=edge_spacing)
+        weight = np.clip((coherence - coherence_floor) / (1.0 - coherence_floor), 0.0, 1.0)
+        weight /= np.maximum(crowding, 1.0)
+        keep = weight > 0.05
+        features, weight = features.select(keep), weight[keep]
+    else:
+        weight = np.ones(len(features))
+    bins = np.minimum((features.theta / np.pi * vote_bins).astype(np.int64), vote_bins - 1)
+    order = np.argsort(bins, kind="stable")
+    bin_start = np.searchsorted(bins[order], np.arange(vote_bins + 1)).astype(np.int64)
+    density = np.zeros((density_bins, h, w), dtype=np.float32)
+    cols = np.clip(np.rint(features.xy[:, 0]).astype(np.int64), 0, w - 1)
+    rows = np.clip(np.rint(features.xy[:, 1]).astype(np.int64), 0, h - 1)
+    centres = (np.arange(density_bins) + 0.5) * np.pi / density_bins
+    # cv2 normalises its Gaussian to unit sum; peak-1 kernels need 2 pi s^2,
+    # and an isolated edge sampled every `edge_spacing` pixels then sums to
+    # sqrt(2 pi) sigma / spacing, which is brought to 1.
+    gain = np.sqrt(2.0 * np.pi) * position_sigma * edge_spacing
+    for b, c in enumerate(centres):
+        plane = np.zeros((h, w), dtype=np.float64)
+        np.add.at(plane, (rows, cols), weight * orientation_kernel(features.theta - c,
+                                                                   orientation_kappa))
+        density[b] = gain * cv2.GaussianBlur(plane, (0, 0), position_sigma,
+                                             borderType=cv2.BORDER_CONSTANT)
+    lut = orientation_kernel(np.linspace(0.0, np.pi / 2, _LUT_SIZE), orientation_kappa)
+    cut = orientation_cutoff(orientation_kappa, vote_cutoff)
+    radius = int(np.ceil(cut / (np.pi / vote_bins)))
+    return TestMaps(xy=features.xy[order].copy(), theta=features.theta[order].copy(),
+                    weight=weight[order].copy(), bin_start=bin_start, density=density,
+                    lut=np.where(lut >= vote_cutoff, lut, 0.0),
+                    vote_radius=min(radius, vote_bins // 2), position_sigma=float(position_sigma))
+
+
+# --- kernel 1: votes ----------------------------------------------------------
+
+@numba.njit(cache=True, nogil=True, fastmath=False)
+def accumulate_votes(train_xy, train_theta, train_w, alpha, scale, test_xy, test_theta, test_w,
+                     bin_start, lut, radius, cell, acc, stride=1):  # pragma: no cover - compiled
+    """Add the translation votes of one pose into ``acc`` (grid of cell ``cell`` px).
+
+    ``acc[r, c]`` collects votes for ``t = (c * cell, r * cell)``, splatted
+    bilinearly. Only every ``stride``-th training feature votes (with
+    ``stride`` times its weight), which keeps the vote density the same at
+    a fraction of the cost. Returns nothing; ``acc`` is updated in place.
+    """
+    n_bins = bin_start.shape[0] - 1
+    bin_width = np.pi / n_bins
+    lut_scale = (lut.shape[0] - 1) / (np.pi / 2.0)
+    gh, gw = acc.shape
+    ca, sa = np.cos(alpha), np.sin(alpha)
+    for i in range(0, train_xy.shape[0], stride):
+        wi = train_w[i] * stride
+        if wi <= 0.0:
+            continue
+        qx = scale * (ca * train_xy[i, 0] - sa * train_xy[i, 1])
+        qy = scale * (sa * train_xy[i, 0] + ca * train_xy[i, 1])
+        th = train_theta[i] + alpha
+        th = th - np.pi * np.floor(th / np.pi)
+        centre = int(th / bin_width)
+        for db in range(-radius, radius + 1):
+            b = (centre + db) % n_bins
+            for j in range(bin_start[b], bin_start[b + 1]):
+                d = abs(test_theta[j] - th)
+                if d > np.pi / 2.0:
+                    d = np.pi - d
+                wo = lut[int(d * lut_scale + 0.5)]
+                if wo <= 0.0:
+                    continue
+                gx = (test_xy[j, 0] - qx) / cell
+                gy = (test_xy[j, 1] - qy) / cell
+                if gx < 0.0 or gy < 0.0:
+                    continue
+                c0 = int(gx)
+                r0 = int(gy)
+                if c0 >= gw - 1 or r0 >= gh - 1:
+                    continue
+                fx = gx - c0
+                fy = gy - r0
+                v = wi * wo * test_w[j]
+                acc[r0, c0] += v * (1.0 - fx) * (1.0 - fy)
+                acc[r0, c0 + 1] += v * fx * (1.0 - fy)
+                acc[r0 + 1, c0] += v * (1.0 - fx) * fy
+                acc[r0 + 1, c0 + 1] += v * fx * fy
+
+
+def accumulate_votes_reference(train_xy, train_theta, train_w, alpha, scale, test_xy, test_theta,
+                               test_w, lut, cell, shape):
+    """Pure-numpy :func:`accumulate_votes` over all pairs (for tests).
+
+    Unlike the kernel it does not skip pairs by orientation bin; pairs outside
+    the kernel's bin radius get a zero table value whenever the bin radius
+    covers the table's support, as :func:`prepare_test` ensures.
+    """
+    ca, sa = np.cos(alpha), np.sin(alpha)
+    q = scale * np.stack([ca * train_xy[:, 0] - sa * train_xy[:, 1],
+                          sa * train_xy[:, 0] + ca * train_xy[:, 1]], axis=1)
+    th = np.mod(train_theta + alpha, np.pi)
+    d = np.abs(test_theta[None, :] - th[:, None])
+    d = np.where(d > np.pi / 2, np.pi - d, d)
+    wo = lut[(d * (len(lut) - 1) / (np.pi / 2) + 0.5).astype(int)]
+    v = train_w[:, None] * wo * test_w[None, :]
+    gx = (test_xy[None, :, 0] - q[:, None, 0]) / cell
+    gy = (test_xy[None, :, 1] - q[:, None, 1]) / cell
+    acc = np.zeros(shape)
+    c0 = np.floor(gx).astype(int)
+    r0 = np.floor(gy).astype(int)
+    ok = (v > 0) & (train_w[:, None] > 0) & (gx >= 0) & (gy >= 0) & (c0 < shape[1] - 1) & (
+        r0 < shape[0] - 1)
+    fx, fy, v, c0, r0 = (gx - c0)[ok], (gy - r0)[ok], v[ok], c0[ok], r0[ok]
+    np.add.at(acc, (r0, c0), v * (1 - fx) * (1 - fy))
+    np.add.at(acc, (r0, c0 + 1), v * fx * (1 - fy))
+    np.add.at(acc, (r0 + 1, c0), v * (1 - fx) * fy)
+    np.add.at(acc, (r0 + 1, c0 + 1), v * fx * fy)
+    return acc
+
+
+# --- kernel 2: exact score --------------------------------------------------------
+
+@numba.njit(cache=True, nogil=True)
+def gather_score(density, train_xy, train_theta, train_w, alpha, scale, tu, tv
+                 ):  # pragma: no cover - compiled
+    """Sum of ``wt_i * phi(T_w x_i)`` with ``T_w`` = (alpha, scale, (tu, tv)).
+
+    ``phi`` is read from the tabulated maps with bilinear interpolation in
+    position and linear interpolation in orientation; outside the image it
+    is 0.
+    """
+    n_bins, h, w = density.shape
+    bin_width = np.pi / n_bins
+    ca, sa = np.cos(alpha), np.sin(alpha)
+    total = 0.0
+    for i in range(train_xy.shape[0]):
+        wi = train_w[i]
+        if wi <= 0.0:
+            continue
+        x = scale * (ca * train_xy[i, 0] - sa * train_xy[i, 1]) + tu
+        y = scale * (sa * train_xy[i, 0] + ca * train_xy[i, 1]) + tv
+        if x < 0.0 or y < 0.0 or x >= w - 1 or y >= h - 1:
+            continue
+        th = train_theta[i] + alpha
+        th = th - np.pi * np.floor(th / np.pi)
+        f = th / bin_width - 0.5
+        fb = np.floor(f)
+        ft = f - fb
+        b0 = int(fb) % n_bins
+        b1 = (b0 + 1) % n_bins
+        c0 = int(x)
+        r0 = int(y)
+        fx = x - c0
+        fy = y - r0
+        v0 = ((1 - fx) * (1 - fy) * density[b0, r0, c0] + fx * (1 - fy) * density[b0, r0, c0 + 1]
+              + (1 - fx) * fy * density[b0, r0 + 1, c0] + fx * fy * density[b0, r0 + 1, c0 + 1])
+        v1 = ((1 - fx) * (1 - fy) * density[b1, r0, c0] + fx * (1 - fy) * density[b1, r0, c0 + 1]
+              + (1 - fx) * fy * density[b1, r0 + 1, c0] + fx * fy * density[b1, r0 + 1, c0 + 1])
+        total += wi * ((1.0 - ft) * v0 + ft * v1)
+    return total
+
+
+def gather_score_reference(density, train_xy, train_theta, train_w, alpha, scale, tu, tv):
+    """Pure-numpy :func:`gather_score` (for tests)."""
+    from scipy.ndimage import map_coordinates
+
+    n_bins = density.shape[0]
+    h, w = density.shape[1:]
+    ca, sa = np.cos(alpha), np.sin(alpha)
+    x = scale * (ca * train_xy[:, 0] - sa * train_xy[:, 1]) + tu
+    y = scale * (sa * train_xy[:, 0] + ca * train_xy[:, 1]) + tv
+    th = np.mod(train_theta + alpha, np.pi)
+    f = th / (np.pi / n_bins) - 0.5
+    b0 = np.floor(f).astype(int) % n_bins
+    b1 = (b0 + 1) % n_bins
+    ft = f - np.floor(f)
+    inside = (x >= 0) & (y >= 0) & (x < w - 1) & (y < h - 1) & (train_w > 0)
+    v0 = map_coordinates(density.astype(np.float64), [b0, y, x], order=1, mode="constant")
+    v1 = map_coordinates(density.astype(np.float64), [b1, y, x], order=1, mode="constant")
+    return float(np.sum(np.where(inside, train_w * ((1 - ft) * v0 + ft * v1), 0.0)))
+
+
+# --- driver ---------------------------------------------------------------------
+
+@numba.njit(cache=True, nogil=True)
+def _blur(acc, tmp, taps):  # pragma: no cover - compiled
+    """Separable smoothing of ``acc`` in place with the symmetric kernel ``taps``."""
+    gh, gw = acc.shape
+    r = taps.shape[0] // 2
+    for row in range(gh):
+        for c in range(gw):
+            total = 0.0
+            for k in range(-r, r + 1):
+                cc = c + k
+                if 0 <= cc < gw:
+                    total += taps[k + r] * acc[row, cc]
+            tmp[row, c] = total
+    for row in range(gh):
+        for c in range(gw):
+            total = 0.0
+            for k in range(-r, r + 1):
+                rr = row + k
+                if 0 <= rr < gh:
+                    total += taps[k + r] * tmp[rr, c]
+            acc[row, c] = total
+
+
+def blur_taps(sigma_cells: float) -> NDArray[np.float64]:
+    """Normalised Gaussian taps (3 sigma) for smoothing the vote grid."""
+    r = max(1, int(np.ceil(3.0 * sigma_cells)))
+    x = np.arange(-r, r + 1, dtype=np.float64)
+    taps = np.exp(-x * x / (2.0 * max(sigma_cells, 1e-3) ** 2))
+    return taps / taps.sum()
+
+
+@numba.njit(cache=True, nogil=True)
+def _prepare_pose(density, train_xy, train_theta, train_w, alpha, scale, u0, v0, base, frac,
+                  obins, ofrac):  # pragma: no cover - compiled
+    """Per-feature geometry of one pose relative to the integer pixel (u0, v0).
+
+    Shifting the translation by whole pixels keeps every feature's fractional
+    position, so bilinear weights and orientation bins are computed once.
+    """
+    n_bins = density.shape[0]
+    bin_width = np.pi / n_bins
+    ca, sa = np.cos(alpha), np.sin(alpha)
+    for i in range(train_xy.shape[0]):
+        x = scale * (ca * train_xy[i, 0] - sa * train_xy[i, 1]) + u0
+        y = scale * (sa * train_xy[i, 0] + ca * train_xy[i, 1]) + v0
+        c0 = np.floor(x)
+        r0 = np.floor(y)
+        base[i, 0] = int(c0)
+        base[i, 1] = int(r0)
+        frac[i, 0] = x - c0
+        frac[i, 1] = y - r0
+        th = train_theta[i] + alpha
+        th = th - np.pi * np.floor(th / np.pi)
+        f = th / bin_width - 0.5
+        fb = np.floor(f)
+        ofrac[i] = f - fb
+        obins[i, 0] = int(fb) % n_bins
+        obins[i, 1] = (obins[i, 0] + 1) % n_bins
+
+
+@numba.njit(cache=True, nogil=True)
+def _shifted_score(density, train_w, base, frac, obins, ofrac, du, dv
+                   ):  # pragma: no cover - compiled
+    """gather_score for the prepared pose shifted by whole pixels (du, dv)."""
+    h = density.shape[1]
+    w = density.shape[2]
+    total = 0.0
+    for i in range(train_w.shape[0]):
+        wi = train_w[i]
+        c0 = base[i, 0] + du
+        r0 = base[i, 1] + dv
+        if wi <= 0.0 or c0 < 0 or r0 < 0 or c0 >= w - 1 or r0 >= h - 1:
+            continue
+        fx = frac[i, 0]
+        fy = frac[i, 1]
+        w00 = (1 - fx) * (1 - fy)
+        w01 = fx * (1 - fy)
+        w10 = (1 - fx) * fy
+        w11 = fx * fy
+        b0 = obins[i, 0]
+        b1 = obins[i, 1]
+        v0 = (w00 * density[b0, r0, c0] + w01 * density[b0, r0, c0 + 1]
+              + w10 * density[b0, r0 + 1, c0] + w11 * density[b0, r0 + 1, c0 + 1])
+        v1 = (w00 * density[b1, r0, c0] + w01 * density[b1, r0, c0 + 1]
+              + w10 * density[b1, r0 + 1, c0] + w11 * density[b1, r0 + 1, c0 + 1])
+        total += wi * ((1.0 - ofrac[i]) * v0 + ofrac[i] * v1)
+    return total
+
+
+_POLISH_RADIUS = 8
+
+
+@numba.njit(cache=True, nogil=True)
+def _polish(density, train_xy, train_theta, train_w, alpha, scale, u0, v0, base, frac, obins,
+            ofrac, cache):  # pragma: no cover - compiled
+    """Hill-climb the exact score on a 1-pixel lattice, then a parabolic step."""
+    cu = np.floor(u0 + 0.5)
+    cv = np.floor(v0 + 0.5)
+    _prepare_pose(density, train_xy, train_theta, train_w, alpha, scale, cu, cv, base, frac,
+                  obins, ofrac)
+    r = _POLISH_RADIUS
+    cache[:, :] = np.nan
+    vals = np.empty((3, 3))
+    pu = 0
+    pv = 0
+    for _ in range(4 * r):
+        for dr in range(3):
+            for dc in range(3):
+                iu = pu + dc - 1
+                iv = pv + dr - 1
+                if abs(iu) > r or abs(iv) > r:
+                    vals[dr, dc] = -1.0
+                    continue
+                val = cache[iv + r, iu + r]
+                if np.isnan(val):
+                    val = _shifted_score(density, train_w, base, frac, obins, ofrac, iu, iv)
+                    cache[iv + r, iu + r] = val
+                vals[dr, dc] = val
+        best = 4
+        bv = vals[1, 1]
+        for k in range(9):
+            if vals[k // 3, k % 3] > bv:
+                bv = vals[k // 3, k % 3]
+                best = k
+        if best == 4:
+            break
+        pu += best % 3 - 1
+        pv += best // 3 - 1
+    # Parabolic interpolation through the centre row and column.
+    du = 0.0
+    dv = 0.0
+    peak = vals[1, 1]
+    den_u = vals[1, 0] - 2.0 * vals[1, 1] + vals[1, 2]
+    den_v = vals[0, 1] - 2.0 * vals[1, 1] + vals[2, 1]
+    if den_u < 0.0 and vals[1, 0] >= 0.0 and vals[1, 2] >= 0.0:
+        du = 0.5 * (vals[1, 0] - vals[1, 2]) / den_u
+        du = min(0.5, max(-0.5, du))
+        peak -= 0.25 * (vals[1, 0] - vals[1, 2]) * du
+    if den_v < 0.0 and vals[0, 1] >= 0.0 and vals[2, 1] >= 0.0:
+        dv = 0.5 * (vals[0, 1] - vals[2, 1]) / den_v
+        dv = min(0.5, max(-0.5, dv))
+        peak -= 0.25 * (vals[0, 1] - vals[2, 1]) * dv
+    return peak, cu + pu + du, cv + pv + dv
+
+
+@numba.njit(cache=True, nogil=True)
+def _search_kernel(train_xy, train_theta, train_w, alphas, scales, test_xy, test_theta, test_w,
+                   bin_start, lut, radius, density, cell, taps, n_candidates, stride, out_score,
+                   out_t):  # pragma: no cover - compiled
+    h = density.shape[1]
+    w = density.shape[2]
+    gh = int(np.ceil(h / cell)) + 1
+    gw = int(np.ceil(w / cell)) + 1
+    acc = np.zeros((gh, gw))
+    tmp = np.zeros((gh, gw))
+    m = train_xy.shape[0]
+    base = np.empty((m, 2), dtype=np.int64)
+    frac = np.empty((m, 2))
+    obins = np.empty((m, 2), dtype=np.int64)
+    ofrac = np.empty(m)
+    cache = np.empty((2 * _POLISH_RADIUS + 1, 2 * _POLISH_RADIUS + 1))
+    for a in range(alphas.shape[0]):
+        for s in range(scales.shape[0]):
+            acc[:, :] = 0.0
+            accumulate_votes(train_xy, train_theta, train_w, alphas[a], scales[s], test_xy,
+                             test_theta, test_w, bin_start, lut, radius, cell, acc, stride)
+            _blur(acc, tmp, taps)
+            best_score = -1.0
+            best_u = 0.0
+            best_v = 0.0
+            for _ in range(n_candidates):
+                flat = np.argmax(acc)
+                r = flat // gw
+                c = flat % gw
+                if acc[r, c] <= 0.0:
+                    break
+                score, u, v = _polish(density, train_xy, train_theta, train_w, alphas[a],
+                                      scales[s], c * cell, r * cell, base, frac, obins, ofrac,
+                                      cache)
+                if score > best_score:
+                    best_score = score
+                    best_u = u
+                    best_v = v
+                # Suppress this peak's neighbourhood before the next candidate.
+                sup = taps.shape[0] // 2 + 1
+                for rr in range(max(0, r - sup), min(gh, r + sup + 1)):
+                    for cc in range(max(0, c - sup), min(gw, c + sup + 1)):
+                        acc[rr, cc] = 0.0
+            out_score[a, s] = max(best_score, 0.0)
+            out_t[a, s, 0] = best_u
+            out_t[a, s, 1] = best_v
+
+
+def search_translations(maps: TestMaps, train_xy: NDArray[np.float64],
+                        train_theta: NDArray[np.float64], train_w: NDArray[np.float64], *,
+                        inplanes: NDArray[np.float64], scales: NDArray[np.float64],
+                        cell: float | None = None, n_candidates: int = 3,
+                        max_voters: int | None = 200
+                        ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Best translation and its score for every (in-plane angle, scale) step.
+
+    Parameters
+    ----------
+    maps : TestMaps
+        The prepared test image.
+    train_xy, train_theta, train_w : ndarray
+        Training features of one viewpoint (object-centred) and their vote
+        weights (``wt_i * K1``), already normalised to sum to 1.
+    inplanes : ndarray, shape (A,)
+        In-plane angles, radians.
+    scales : ndarray, shape (S,)
+        Scales (image pixels per model unit).
+    cell : float, optional
+        Vote grid cell, pixels; by default two-thirds of the maps' position
+        kernel width (at least 1.5). Votes are smoothed with that kernel.
+    n_candidates : int, optional
+        Vote peaks polished with the exact score per step.
+    max_voters : int or None, optional
+        At most about this many training features vote (an even stride
+        through them); all of them count in the exact score.
+
+    Returns
+    -------
+    score : ndarray, shape (A, S)
+        ``p(w)`` at the best translation (Eq. 3 with the model's weights).
+    translation : ndarray, shape (A, S, 2)
+        Best reference-point position ``(u, v)``, pixels.
+    """
+    out_score = np.zeros((len(inplanes), len(scales)))
+    out_t = np.zeros((len(inplanes), len(scales), 2))
+    if cell is None:
+        cell = max(1.5, maps.position_sigma / 1.5)
+    taps = blur_taps(maps.position_sigma / cell)
+    stride = 1 if max_voters is None else max(1, int(np.ceil(len(train_theta) / max_voters)))
+    if len(train_theta) and len(maps.theta):
+        _search_kernel(np.ascontiguousarray(train_xy, dtype=np.float64),
+                       np.ascontiguousarray(train_theta, dtype=np.float64),
+                       np.ascontiguousarray(train_w, dtype=np.float64),
+                       np.asarray(inplanes, dtype=np.float64), np.asarray(scales, dtype=np.float64),
+                       maps.xy, maps.theta, maps.weight, maps.bin_start, maps.lut, maps.vote_radius,
+                       maps.density, float(cell), taps, int(n_candidates), stride, out_score,
+                       out_t)
+    return out_score, out_t

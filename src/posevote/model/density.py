@@ -1,0 +1,219 @@
+"""The training density psi (Eq. 1), the test density phi (Eq. 2) and p(w) (Eq. 3).
+
+A :class:`PoseModel` stores the training pairs ``(w_i, x_i)``: every edge
+feature of every training view, object-centred, scale-normalised and upright,
+with the pose of its view and its weight ``wt_i`` (Eq. 4).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from posevote.features.edges import EdgeFeatures
+from posevote.geometry import rotate_points, viewing_direction
+from posevote.model.kernels import orientation_kernel, position_kernel, viewpoint_kernel
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class PoseModel:
+    """Training pairs defining psi(w, x) (Eq. 1).
+
+    Attributes
+    ----------
+    xy : ndarray, shape (M, 2)
+        Object-centred, scale-normalised feature positions (reference pixels).
+    theta : ndarray, shape (M,)
+        Feature orientations in ``[0, pi)`` (upright: view in-plane undone).
+    view : ndarray of int, shape (M,)
+        Training view each feature comes from.
+    weight : ndarray, shape (M,)
+        Weights ``wt_i`` in ``[0, 1]`` (all ones when weights are off).
+    view_azimuth, view_elevation : ndarray, shape (K,)
+        Viewpoint ``w1`` of each training view, radians.
+    view_box : ndarray, shape (K, 2)
+        Box width and height of each view, reference pixels.
+    view_instance : ndarray of int, shape (K,)
+        Instance index of each view.
+    instance_names : tuple of str
+        Instance names.
+    reference_size : float
+        Pixels per reference unit in the training images (median box height).
+    category : str
+        Category name, "" if none.
+    """
+
+    xy: NDArray[np.float64]
+    theta: NDArray[np.float64]
+    view: NDArray[np.int64]
+    weight: NDArray[np.float64]
+    view_azimuth: NDArray[np.float64]
+    view_elevation: NDArray[np.float64]
+    view_box: NDArray[np.float64]
+    view_instance: NDArray[np.int64]
+    instance_names: tuple[str, ...]
+    reference_size: float
+    category: str = ""
+
+    @property
+    def n_features(self) -> int:
+        """Number of training pairs M."""
+        return int(self.theta.shape[0])
+
+    @property
+    def n_views(self) -> int:
+        """Number of training views K."""
+        return int(self.view_azimuth.shape[0])
+
+    def view_directions(self) -> NDArray[np.float64]:
+        """Viewing direction of each training view, shape (K, 3)."""
+        return viewing_direction(self.view_azimuth, self.view_elevation)
+
+    def with_weights(self, weight: NDArray[np.float64]) -> PoseModel:
+        """A copy with other feature weights."""
+        fields = {k: getattr(self, k) for k in self.__dataclass_fields__}
+        fields["weight"] = np.asarray(weight, dtype=np.float64)
+        return PoseModel(**fields)
+
+    def select_instances(self, names: Sequence[str]) -> PoseModel:
+        """The model restricted to the views of the given instances."""
+        idx = [self.instance_names.index(n) for n in names]
+        keep_view = np.isin(self.view_instance, idx)
+        new_index = np.cumsum(keep_view) - 1
+        keep_feat = keep_view[self.view]
+        remap = np.full(len(self.instance_names), -1)
+        remap[idx] = np.arange(len(idx))
+        return PoseModel(
+            xy=self.xy[keep_feat], theta=self.theta[keep_feat],
+            view=new_index[self.view[keep_feat]], weight=self.weight[keep_feat],
+            view_azimuth=self.view_azimuth[keep_view], view_elevation=self.view_elevation[keep_view],
+            view_box=self.view_box[keep_view], view_instance=remap[self.view_instance[keep_view]],
+            instance_names=tuple(names), reference_size=self.reference_size, category=self.category,
+        )
+
+
+def build_model(
+    view_features: Sequence[EdgeFeatures],
+    *,
+    poses: NDArray[np.float64],
+    centers: NDArray[np.float64],
+    scales: NDArray[np.float64],
+    box_sizes: NDArray[np.float64],
+    instances: Sequence[int],
+    instance_names: Sequence[str],
+    reference_size: float,
+    category: str = "",
+) -> PoseModel:
+    """Pool the features of the training views into a :class:`PoseModel`.
+
+    Parameters
+    ----------
+    view_features : sequence of EdgeFeatures
+        Features of each training view, in image pixels, already restricted to
+        the object.
+    poses : ndarray, shape (K, 3)
+        Azimuth, elevation, in-plane angle of each view (radians).
+    centers : ndarray, shape (K, 2)
+        Reference point ``(u, v)`` of each view (the box centre).
+    scales : ndarray, shape (K,)
+        Pixels per reference unit of each view.
+    box_sizes : ndarray, shape (K, 2)
+        Box width and height of each view, pixels.
+    instances : sequence of int
+        Instance index of each view.
+    instance_names : sequence of str
+        Names of the instances.
+    reference_size : float
+        Pixels per reference unit that scale 1 stands for.
+    category : str, optional
+        Category name.
+
+    Returns
+    -------
+    PoseModel
+        With unit weights; see :func:`posevote.model.weights.feature_weights`.
+    """
+    xy, theta, view = [], [], []
+    for k, feats in enumerate(view_features):
+        inplane = poses[k, 2]
+        xy.append(rotate_points(feats.xy - centers[k], -inplane) / scales[k])
+        theta.append(np.mod(feats.theta - inplane, np.pi))
+        view.append(np.full(len(feats), k, dtype=np.int64))
+    all_theta = np.concatenate(theta) if theta else np.zeros(0)
+    return PoseModel(
+        xy=np.concatenate(xy) if xy else np.zeros((0, 2)),
+        theta=all_theta,
+        view=np.concatenate(view) if view else np.zeros(0, dtype=np.int64),
+        weight=np.ones_like(all_theta),
+        view_azimuth=np.mod(poses[:, 0], 2 * np.pi),
+        view_elevation=poses[:, 1].copy(),
+        view_box=box_sizes / scales[:, None],
+        view_instance=np.asarray(instances, dtype=np.int64),
+        instance_names=tuple(instance_names),
+        reference_size=float(reference_size),
+        category=category,
+    )
+
+
+def viewpoint_weights(model: PoseModel, azimuth: float, elevation: float, *, kappa: float
+                      ) -> NDArray[np.float64]:
+    """Pose kernel K1 between a viewpoint and each training view, shape (K,)."""
+    probe = viewing_direction(azimuth, elevation)
+    return viewpoint_kernel(model.view_directions(), probe, kappa)
+
+
+def image_density(features: EdgeFeatures, x_xy: NDArray[np.float64], x_theta: NDArray[np.float64],
+                 *, position_sigma: float, orientation_kappa: float) -> NDArray[np.float64]:
+    """phi(x) of Eq. 2 (max-normalised kernels, no 1/N): reference implementation.
+
+    Parameters
+    ----------
+    features : EdgeFeatures
+        Test features x_j.
+    x_xy : ndarray, shape (P, 2)
+        Positions at which to evaluate.
+    x_theta : ndarray, shape (P,)
+        Orientations at which to evaluate.
+    position_sigma, orientation_kappa : float
+        Combined kernel widths (module :mod:`posevote.model.kernels`).
+
+    Returns
+    -------
+    ndarray, shape (P,)
+    """
+    d2 = np.sum((x_xy[:, None, :] - features.xy[None, :, :]) ** 2, axis=-1)
+    k = position_kernel(d2, position_sigma) * orientation_kernel(
+        x_theta[:, None] - features.theta[None, :], orientation_kappa)
+    return k.sum(axis=1)
+
+
+def pose_likelihood(model: PoseModel, features: EdgeFeatures, *, azimuth: float, elevation: float,
+                    inplane: float, scale: float, position: tuple[float, float],
+                    position_sigma: float, orientation_kappa: float, viewpoint_kappa: float,
+                    use_weights: bool = True) -> float:
+    """p(w) of Eq. 3 in closed form, exact (no voting): reference and probe.
+
+    ``p(w) = sum_i wt_i K1(w, w_i) phi(T_w x_i) / sum_i wt_i K1(w, w_i)``:
+    the training features are moved by the pose's in-plane rotation, scale
+    and translation, and each is scored by the test density at its place.
+    Scale here is in image pixels per reference unit.
+
+    Returns
+    -------
+    float
+        Weighted fraction of model features explained by the image (0 if the
+        viewpoint is far from every training view).
+    """
+    k1 = viewpoint_weights(model, azimuth, elevation, kappa=viewpoint_kappa)[model.view]
+    w = k1 * (model.weight if use_weights else 1.0)
+    total = w.sum()
+    if total <= 0:
+        return 0.0
+    xy = scale * rotate_points(model.xy, inplane) + np.asarray(position, dtype=np.float64)
+    theta = np.mod(model.theta + inplane, np.pi)
+    phi = image_density(features, xy, theta, position_sigma=position_sigma,
+                       orientation_kappa=orientation_kappa)
+    return float(np.sum(w * phi) / total)

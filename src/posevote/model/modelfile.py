@@ -1,0 +1,127 @@
+"""The model file: versioned, self-describing, loaded without pickle.
+
+A model file is a NumPy ``.npz`` archive of plain numeric arrays plus one
+``header`` entry: UTF-8 JSON with ``format`` (``"posevote-model"``),
+``version`` (an integer), the estimator's hyper-parameters and the model's
+names. ``allow_pickle`` is never enabled, so loading a file cannot run code.
+"""
+
+from __future__ import annotations
+
+import json
+import zipfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from posevote._io import atomic_open
+from posevote.model.density import PoseModel
+
+FORMAT_NAME = "posevote-model"
+FORMAT_VERSION = 1
+
+_ARRAYS = ("xy", "theta", "view", "weight", "view_azimuth", "view_elevation", "view_box",
+           "view_instance")
+
+
+def save_model(path: str | Path, model: PoseModel, params: dict[str, Any],
+               extra: dict[str, Any] | None = None) -> None:
+    """Write a model file atomically.
+
+    Parameters
+    ----------
+    path : str or Path
+        Destination (conventionally ``*.npz``).
+    model : PoseModel
+        The trained model.
+    params : dict
+        Estimator hyper-parameters (JSON-serialisable).
+    extra : dict, optional
+        Further JSON-serialisable facts to record (training statistics).
+    """
+    header = {
+        "format": FORMAT_NAME,
+        "version": FORMAT_VERSION,
+        "params": params,
+        "instance_names": list(model.instance_names),
+        "reference_size": model.reference_size,
+        "category": model.category,
+        "extra": extra or {},
+    }
+    arrays = {name: getattr(model, name) for name in _ARRAYS}
+    arrays["header"] = np.frombuffer(json.dumps(header).encode("utf-8"), dtype=np.uint8)
+    with atomic_open(path, "wb") as fh:
+        np.savez_compressed(fh, **arrays)
+
+
+def load_model(path: str | Path) -> tuple[PoseModel, dict[str, Any], dict[str, Any]]:
+    """Read a model file.
+
+    Parameters
+    ----------
+    path : str or Path
+        A file written by :func:`save_model`.
+
+    Returns
+    -------
+    model : PoseModel
+    params : dict
+        The estimator hyper-parameters it was trained with.
+    extra : dict
+        Recorded training facts.
+
+    Raises
+    ------
+    FileNotFoundError
+        If the file does not exist.
+    ValueError
+        If it is not a posevote model, is truncated or corrupt, or was written
+        by a newer format version than this posevote reads.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"model file not found: {path}")
+    if not zipfile.is_zipfile(path):
+        raise ValueError(f"{path}: not a posevote model file (not an .npz archive, or truncated)")
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            if "header" not in data.files:
+                raise ValueError(f"{path}: not a posevote model file (no header)")
+            header = json.loads(bytes(data["header"]).decode("utf-8"))
+            if not isinstance(header, dict) or header.get("format") != FORMAT_NAME:
+                raise ValueError(f"{path}: not a posevote model file")
+            version = header.get("version")
+            if not isinstance(version, int) or version > FORMAT_VERSION:
+                raise ValueError(
+                    f"{path}: model format version {version} is newer than this posevote reads "
+                    f"(up to {FORMAT_VERSION}); upgrade posevote or retrain the model")
+            arrays = {name: data[name] for name in _ARRAYS}
+    except ValueError as exc:
+        if str(exc).startswith(str(path)):
+            raise
+        raise ValueError(f"{path}: corrupt or truncated model file ({exc})") from None
+    except (zipfile.BadZipFile, OSError, KeyError, EOFError, json.JSONDecodeError,
+            UnicodeDecodeError) as exc:
+        raise ValueError(f"{path}: not a posevote model file, or truncated/corrupt "
+                         f"({type(exc).__name__}: {exc})") from None
+    m = len(arrays["theta"])
+    k = len(arrays["view_azimuth"])
+    shapes_ok = (arrays["xy"].shape == (m, 2) and arrays["view"].shape == (m,)
+                 and arrays["weight"].shape == (m,) and arrays["view_box"].shape == (k, 2)
+                 and arrays["view_elevation"].shape == (k,) and arrays["view_instance"].shape == (k,)
+                 and (m == 0 or (arrays["view"].min() >= 0 and arrays["view"].max() < k)))
+    if not shapes_ok:
+        raise ValueError(f"{path}: corrupt model file (inconsistent array shapes)")
+    model = PoseModel(
+        xy=arrays["xy"].astype(np.float64), theta=arrays["theta"].astype(np.float64),
+        view=arrays["view"].astype(np.int64), weight=arrays["weight"].astype(np.float64),
+        view_azimuth=arrays["view_azimuth"].astype(np.float64),
+        view_elevation=arrays["view_elevation"].astype(np.float64),
+        view_box=arrays["view_box"].astype(np.float64),
+        view_instance=arrays["view_instance"].astype(np.int64),
+        instance_names=tuple(header.get("instance_names", [])),
+        reference_size=float(header.get("reference_size", 1.0)),
+        category=str(header.get("category", "")),
+    )
+    return model, dict(header.get("params", {})), dict(header.get("extra", {}))

@@ -1,0 +1,78 @@
+"""Pose-specificity weights of training features (Sec. II-C, Eq. 4).
+
+Our reading of Eq. 4 (METHOD.md)::
+
+    wt(w_i, x_i) = 1 - 1/K * sum_k psi~_k(x_i) * (1 - K1~(w_i, w_k))
+
+``psi~_k(x)`` is the max-normalised appearance density of training view
+``k`` at ``x`` (here: the strongest kernel response of any feature of view
+``k``, in ``[0, 1]``), and ``K1~`` the max-normalised pose kernel. A feature
+that also shows up, at the same object-centred place and orientation, in
+views of very different pose gets a low weight; one that pins the pose down
+gets a weight near 1.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial import cKDTree
+
+from posevote.model.density import PoseModel
+from posevote.model.kernels import orientation_kernel, position_kernel, viewpoint_kernel
+
+
+def feature_weights(model: PoseModel, *, position_sigma: float, orientation_kappa: float,
+                    viewpoint_kappa: float, max_pairs: int = 50_000_000) -> NDArray[np.float64]:
+    """Weights ``wt_i`` of Eq. 4 for every training feature.
+
+    Parameters
+    ----------
+    model : PoseModel
+        The training pairs (their current weights are ignored).
+    position_sigma : float
+        Width of the appearance kernel in position, reference pixels.
+    orientation_kappa : float
+        Concentration of the appearance kernel in orientation.
+    viewpoint_kappa : float
+        Concentration of the pose kernel K1 on viewing directions.
+    max_pairs : int, optional
+        Guard on the number of nearby feature pairs examined.
+
+    Returns
+    -------
+    ndarray, shape (M,)
+        Weights in ``[0, 1]``.
+
+    Raises
+    ------
+    ValueError
+        If the model has so many overlapping features that more than
+        ``max_pairs`` pairs would be examined.
+    """
+    m, k_views = model.n_features, model.n_views
+    if m == 0:
+        return np.zeros(0)
+    tree = cKDTree(model.xy)
+    radius = 3.0 * position_sigma
+    pairs = tree.query_pairs(radius, output_type="ndarray")
+    if len(pairs) > max_pairs:
+        raise ValueError(f"{len(pairs)} feature pairs to weigh (max_pairs={max_pairs}); "
+                         "prune the model or lower the feature budget")
+    # Both directions of every pair, plus each feature with itself.
+    i = np.concatenate([pairs[:, 0], pairs[:, 1], np.arange(m)])
+    j = np.concatenate([pairs[:, 1], pairs[:, 0], np.arange(m)])
+    d2 = np.sum((model.xy[i] - model.xy[j]) ** 2, axis=1)
+    response = position_kernel(d2, position_sigma) * orientation_kernel(
+        model.theta[i] - model.theta[j], orientation_kappa)
+    # psi~_k(x_i): strongest response among the features of view k.
+    key = i * k_views + model.view[j]
+    order = np.lexsort((-response, key))
+    key, response, i = key[order], response[order], i[order]
+    first = np.ones(len(key), dtype=bool)
+    first[1:] = key[1:] != key[:-1]
+    i, view_k, psi = i[first], key[first] % k_views, response[first]
+    directions = model.view_directions()
+    k1 = viewpoint_kernel(directions[model.view[i]], directions[view_k], viewpoint_kappa)
+    ambiguity = np.bincount(i, weights=psi * (1.0 - k1), minlength=m) / k_views
+    return np.clip(1.0 - ambiguity, 0.0, 1.0)

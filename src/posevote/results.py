@@ -1,0 +1,109 @@
+"""Result types: frozen, keyword-only, radians inside (``*_deg`` views for the edges)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+
+@dataclass(frozen=True, kw_only=True)
+class Hypothesis:
+    """One mode of the pose likelihood p(w).
+
+    Attributes
+    ----------
+    azimuth, elevation, inplane : float
+        Viewpoint ``w1`` and in-plane angle of ``w2``, radians.
+    scale : float
+        Apparent size relative to the training images (``w2``).
+    position : (float, float)
+        Image position ``(u, v)`` of the object's reference point (``w3``),
+        pixels.
+    box : (float, float, float, float)
+        Object box ``(x, y, w, h)``, pixels.
+    score : float
+        ``p(w)`` at the best probe of this mode: the weighted fraction of the
+        model's features explained by the image.
+    refined : bool
+        Whether the continuous refinement (distribution fitting) succeeded;
+        if not, the pose is the best discrete probe.
+    """
+
+    azimuth: float
+    elevation: float
+    inplane: float
+    scale: float
+    position: tuple[float, float]
+    box: tuple[float, float, float, float]
+    score: float
+    refined: bool
+
+    @property
+    def azimuth_deg(self) -> float:
+        """Azimuth in degrees, ``[0, 360)``."""
+        return math.degrees(self.azimuth) % 360.0
+
+    @property
+    def elevation_deg(self) -> float:
+        """Elevation in degrees."""
+        return math.degrees(self.elevation)
+
+    @property
+    def inplane_deg(self) -> float:
+        """In-plane angle in degrees, ``[-180, 180)``."""
+        return (math.degrees(self.inplane) + 180.0) % 360.0 - 180.0
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain dict for files and reports (degrees, pixels)."""
+        return {
+            "azimuth_deg": self.azimuth_deg,
+            "elevation_deg": self.elevation_deg,
+            "inplane_deg": self.inplane_deg,
+            "scale": self.scale,
+            "position_px": list(self.position),
+            "box_px": list(self.box),
+            "score": self.score,
+            "refined": self.refined,
+        }
+
+
+@dataclass(frozen=True, kw_only=True)
+class PoseEstimate:
+    """The result of :meth:`posevote.PoseEstimator.estimate`.
+
+    Attributes
+    ----------
+    found : bool
+        False when no pose could be proposed (no edges in the image, or no
+        mode scored above the estimator's ``min_score``); then ``best`` is None.
+    best : Hypothesis or None
+        The highest-scoring mode.
+    modes : tuple of Hypothesis
+        All modes kept, best first (``modes[0] is best``); other modes show
+        the ambiguities (front/back confusions appear as a second mode).
+    n_test_features : int
+        Edge features found in the image.
+    seconds : float
+        Wall time of the estimate.
+    instance : str
+        Recognised instance ("" when not applicable).
+    """
+
+    found: bool
+    best: Hypothesis | None
+    modes: tuple[Hypothesis, ...] = field(default=())
+    n_test_features: int = 0
+    seconds: float = 0.0
+    instance: str = ""
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain dict for files and reports (degrees, pixels)."""
+        return {
+            "found": self.found,
+            "best": None if self.best is None else self.best.to_dict(),
+            "modes": [m.to_dict() for m in self.modes],
+            "n_test_features": self.n_test_features,
+            "seconds": self.seconds,
+            "instance": self.instance,
+        }

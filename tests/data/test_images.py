@@ -1,0 +1,58 @@
+import cv2
+import numpy as np
+import pytest
+
+from posevote.data import as_gray_float, read_image, read_mask
+
+
+def test_accepts_grey_rgb_rgba_16bit(tmp_path):
+    grey = (np.arange(64, dtype=np.uint8).reshape(8, 8) * 4)
+    cv2.imwrite(str(tmp_path / "g.png"), grey)
+    cv2.imwrite(str(tmp_path / "c.png"), np.dstack([grey] * 3))
+    cv2.imwrite(str(tmp_path / "a.png"), np.dstack([grey] * 3 + [np.full_like(grey, 255)]))
+    cv2.imwrite(str(tmp_path / "w.png"), grey.astype(np.uint16) * 257)
+    ref = read_image(tmp_path / "g.png")
+    assert ref.shape == (8, 8) and ref.dtype == np.float64
+    for name in ("c.png", "a.png", "w.png"):
+        assert np.allclose(read_image(tmp_path / name), ref, atol=1 / 255)
+
+
+def test_colour_order_is_rgb():
+    red = np.zeros((2, 2, 3), np.uint8)
+    red[..., 0] = 255
+    assert as_gray_float(red)[0, 0] == pytest.approx(0.299)
+
+
+def test_missing_file(tmp_path):
+    with pytest.raises(FileNotFoundError, match="image file not found"):
+        read_image(tmp_path / "nope.png")
+
+
+def test_unreadable_file(tmp_path):
+    bad = tmp_path / "bad.png"
+    bad.write_bytes(b"not an image at all")
+    with pytest.raises(ValueError, match="bad.png: cannot decode"):
+        read_image(bad)
+
+
+def test_empty_and_nan_arrays():
+    with pytest.raises(ValueError, match="empty"):
+        as_gray_float(np.zeros((0, 5)), name="img")
+    with pytest.raises(ValueError, match="NaN"):
+        as_gray_float(np.full((3, 3), np.nan))
+    with pytest.raises(ValueError, match="grey"):
+        as_gray_float(np.zeros((3, 3, 2)))
+    with pytest.raises(TypeError, match="numpy array"):
+        as_gray_float([[0.0]])
+    with pytest.raises(TypeError, match="pixel type"):
+        as_gray_float(np.zeros((3, 3), dtype=np.int32))
+
+
+def test_read_mask(tmp_path):
+    m = np.zeros((6, 6), np.uint8)
+    m[2:4, 2:5] = 255
+    cv2.imwrite(str(tmp_path / "m.png"), m)
+    assert read_mask(tmp_path / "m.png").sum() == 6
+    cv2.imwrite(str(tmp_path / "e.png"), np.zeros((6, 6), np.uint8))
+    with pytest.raises(ValueError, match="mask is empty"):
+        read_mask(tmp_path / "e.png")

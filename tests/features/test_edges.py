@@ -1,0 +1,55 @@
+import numpy as np
+import pytest
+
+from posevote.features import box_mask, detect_edges, normalize_features
+
+
+def square(size=64, lo=16, hi=48):
+    img = np.zeros((size, size))
+    img[lo:hi, lo:hi] = 1.0
+    return img
+
+
+def test_edges_lie_on_the_square_with_tangent_orientation():
+    f = detect_edges(square(), spacing=1.0)
+    assert len(f) > 60
+    near_vertical_side = np.abs(f.xy[:, 0] - 16) <= 1.5
+    near_horizontal_side = np.abs(f.xy[:, 1] - 16) <= 1.5
+    mid = (f.xy[:, 1] > 22) & (f.xy[:, 1] < 42)
+    # vertical sides have tangents near pi/2, horizontal ones near 0 (mod pi)
+    assert np.all(np.abs(f.theta[near_vertical_side & mid] - np.pi / 2) < 0.1)
+    mid_h = (f.xy[:, 0] > 22) & (f.xy[:, 0] < 42)
+    th = f.theta[near_horizontal_side & mid_h]
+    assert np.all(np.minimum(th, np.pi - th) < 0.1)
+    assert np.all((f.theta >= 0) & (f.theta < np.pi))
+
+
+def test_budget_and_even_spacing():
+    many = detect_edges(square(128, 10, 118), spacing=1.0)
+    few = detect_edges(square(128, 10, 118), spacing=1.0, max_points=50)
+    assert len(few) <= 50 < len(many)
+    # evenly spread: the points still cover all four sides
+    assert few.xy[:, 0].min() < 14 and few.xy[:, 0].max() > 114
+    assert few.xy[:, 1].min() < 14 and few.xy[:, 1].max() > 114
+
+
+def test_mask_restricts_and_blank_image_is_empty():
+    img = square()
+    mask = box_mask(img.shape, np.array([0.0, 0.0, 32.0, 64.0]))
+    f = detect_edges(img, mask=mask)
+    assert f.xy[:, 0].max() <= 33
+    assert len(detect_edges(np.zeros((32, 32)))) == 0
+
+
+def test_bad_arguments():
+    with pytest.raises(ValueError, match="thresholds"):
+        detect_edges(square(), low_threshold=0.2, high_threshold=0.1)
+    with pytest.raises(ValueError, match="mask has shape"):
+        detect_edges(square(), mask=np.ones((3, 3), bool))
+
+
+def test_normalize_features_round_trip():
+    f = detect_edges(square())
+    n = normalize_features(f, center=np.array([31.5, 31.5]), scale=2.0, inplane=0.3)
+    assert np.abs(n.xy).max() < 10
+    assert np.all((n.theta >= 0) & (n.theta < np.pi))

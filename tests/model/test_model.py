@@ -1,0 +1,98 @@
+import numpy as np
+import pytest
+
+from posevote.features import EdgeFeatures
+from posevote.model import (
+    build_model,
+    feature_weights,
+    image_density,
+    load_model,
+    pose_likelihood,
+    save_model,
+)
+from posevote.model.kernels import kappa_for_width, orientation_cutoff, orientation_kernel
+
+
+def toy_model(shared_feature=True):
+    """Three views; view features at distinct places plus one feature common to all."""
+    views = []
+    for k in range(3):
+        xy = [[10.0 * k - 10, 5.0]]
+        theta = [0.3 * k]
+        if shared_feature:
+            xy.append([0.0, -20.0])
+            theta.append(1.0)
+        views.append(EdgeFeatures(xy=np.array(xy) + 50, theta=np.array(theta)))
+    return build_model(views, poses=np.radians([[0, 0, 0], [120, 0, 0], [240, 0, 0]]),
+                       centers=np.full((3, 2), 50.0), scales=np.ones(3),
+                       box_sizes=np.full((3, 2), 40.0), instances=[0, 0, 0],
+                       instance_names=["toy"], reference_size=40.0)
+
+
+def test_orientation_kernel_is_undirected_and_peaks_at_one():
+    assert orientation_kernel(0.0, 5.0) == pytest.approx(1.0)
+    assert orientation_kernel(np.pi, 5.0) == pytest.approx(1.0)
+    assert orientation_kernel(np.pi / 2, 5.0) < 1e-4
+    k = kappa_for_width(0.2, doubled=True)
+    assert orientation_kernel(0.2, k) == pytest.approx(0.5)
+    assert orientation_kernel(orientation_cutoff(k, 0.1), k) == pytest.approx(0.1)
+
+
+def test_weights_penalise_the_shared_feature():
+    model = toy_model()
+    w = feature_weights(model, position_sigma=2.0, orientation_kappa=8.0, viewpoint_kappa=5.0)
+    shared = model.xy[:, 1] == -20.0
+    assert np.all((w >= 0) & (w <= 1))
+    assert w[shared].max() < w[~shared].min()
+    assert w[~shared] == pytest.approx(1.0)
+    # 2 of 3 views share it, with pose kernel ~0 between views 120 degrees apart
+    assert w[shared] == pytest.approx(1 - 2 / 3, abs=0.01)
+
+
+def test_pose_likelihood_peaks_at_the_true_translation():
+    model = toy_model(shared_feature=False)
+    sel = model.view == 1
+    test = EdgeFeatures(xy=model.xy[sel] + [30.0, 40.0], theta=model.theta[sel])
+    kw = dict(azimuth=np.radians(120), elevation=0.0, inplane=0.0, scale=1.0,
+              position_sigma=2.0, orientation_kappa=8.0, viewpoint_kappa=20.0)
+    at_truth = pose_likelihood(model, test, position=(30.0, 40.0), **kw)
+    assert at_truth == pytest.approx(1.0, abs=1e-6)
+    assert pose_likelihood(model, test, position=(33.0, 40.0), **kw) < at_truth
+    # the test density at the features themselves is 1 each
+    assert np.allclose(image_density(test, test.xy, test.theta, position_sigma=2.0,
+                                    orientation_kappa=8.0), 1.0)
+
+
+def test_model_file_round_trip(tmp_path):
+    model = toy_model()
+    save_model(tmp_path / "m.npz", model, {"position_sigma": 2.0}, extra={"k": 1})
+    loaded, params, extra = load_model(tmp_path / "m.npz")
+    assert params == {"position_sigma": 2.0} and extra == {"k": 1}
+    assert np.array_equal(loaded.xy, model.xy) and loaded.instance_names == ("toy",)
+
+
+def test_model_file_errors(tmp_path):
+    with pytest.raises(FileNotFoundError, match="model file not found"):
+        load_model(tmp_path / "none.npz")
+    junk = tmp_path / "junk.npz"
+    junk.write_bytes(b"hello")
+    with pytest.raises(ValueError, match="junk.npz: not a posevote model file"):
+        load_model(junk)
+    save_model(tmp_path / "m.npz", toy_model(), {})
+    data = (tmp_path / "m.npz").read_bytes()
+    (tmp_path / "cut.npz").write_bytes(data[: len(data) // 2])
+    with pytest.raises(ValueError, match="cut.npz: not a posevote model file"):
+        load_model(tmp_path / "cut.npz")
+    np.savez(tmp_path / "foreign.npz", a=np.zeros(3))
+    with pytest.raises(ValueError, match="foreign.npz: not a posevote model file"):
+        load_model(tmp_path / "foreign.npz")
+
+
+def test_newer_format_is_refused(tmp_path, monkeypatch):
+    import posevote.model.modelfile as mf
+
+    monkeypatch.setattr(mf, "FORMAT_VERSION", 99)
+    mf.save_model(tmp_path / "new.npz", toy_model(), {})
+    monkeypatch.setattr(mf, "FORMAT_VERSION", 1)
+    with pytest.raises(ValueError, match="format version 99 is newer"):
+        mf.load_model(tmp_path / "new.npz")

@@ -1,0 +1,47 @@
+import numpy as np
+import pytest
+
+from posevote.geometry import viewing_direction
+from posevote.inference.search import ProbeSet
+from posevote.refinement import find_modes, refine_mode
+
+
+def synthetic_probes(mu_az, mu_alpha=0.05, mu_scale=1.04, second=None):
+    az = np.radians(np.arange(0, 360, 20.0))
+    alpha = np.radians(np.arange(-20, 21, 5.0))
+    scale = np.geomspace(0.8, 1.25, 5)
+    d = viewing_direction(az, 0.0) @ viewing_direction(mu_az, 0.0)
+    score = 0.1 + 0.8 * np.exp(
+        12.0 * (d[:, None, None] - 1) + 30 * (np.cos(alpha[None, :, None] - mu_alpha) - 1)
+        - np.log(scale[None, None, :] / mu_scale) ** 2 / (2 * 0.1**2))
+    if second is not None:
+        d2 = viewing_direction(az, 0.0) @ viewing_direction(second, 0.0)
+        score = score + 0.5 * np.exp(12.0 * (d2[:, None, None] - 1))
+    return ProbeSet(azimuth=az, elevation=np.zeros_like(az), inplane=alpha, scale=scale,
+                    score=score, translation=np.full(score.shape + (2,), 40.0),
+                    box=np.full((len(az), 2), 30.0))
+
+
+def test_fit_recovers_continuous_pose():
+    probes = synthetic_probes(np.radians(47.0))
+    modes = find_modes(probes)
+    hyp = refine_mode(probes, modes[0])
+    assert hyp.refined
+    assert hyp.azimuth_deg == pytest.approx(47.0, abs=0.5)
+    assert hyp.inplane == pytest.approx(0.05, abs=0.01)
+    assert hyp.scale == pytest.approx(1.04, abs=0.01)
+    coarse = refine_mode(probes, modes[0], fit=False)
+    assert not coarse.refined and coarse.azimuth_deg in (40.0, 60.0)
+
+
+def test_second_mode_is_kept():
+    probes = synthetic_probes(np.radians(40.0), second=np.radians(220.0))
+    modes = find_modes(probes)
+    assert len(modes) >= 2
+    assert abs(np.degrees(probes.azimuth[modes[1]]) - 220) <= 20
+
+
+def test_no_modes_on_empty_scores():
+    probes = synthetic_probes(0.0)
+    empty = ProbeSet(**{**probes.__dict__, "score": np.zeros_like(probes.score)})
+    assert find_modes(empty) == []

@@ -1,0 +1,123 @@
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from posevote.cli import cli
+
+
+@pytest.fixture(scope="module")
+def training_folder(tmp_path_factory, synthetic_training):
+    images, az, boxes = synthetic_training
+    folder = tmp_path_factory.mktemp("train")
+    lines = ["image,azimuth_deg,box_x,box_y,box_w,box_h"]
+    for i, (img, a, b) in enumerate(zip(images, az, boxes, strict=True)):
+        cv2.imwrite(str(folder / f"v{i:02d}.png"), (img * 255).astype(np.uint8))
+        lines.append(f"v{i:02d}.png,{np.degrees(a):.1f},{b[0]},{b[1]},{b[2]},{b[3]}")
+    (folder / "poses.csv").write_text("\n".join(lines) + "\n")
+    return folder
+
+
+@pytest.fixture(scope="module")
+def model_file(training_folder, tmp_path_factory):
+    out = tmp_path_factory.mktemp("model") / "model.npz"
+    result = CliRunner().invoke(cli, ["train", str(training_folder), "-o", str(out)])
+    assert result.exit_code == 0, result.output
+    assert "18 images" in result.output
+    return out
+
+
+@pytest.fixture
+def test_image(tmp_path, draw):
+    path = tmp_path / "test.png"
+    cv2.imwrite(str(path), (draw(np.radians(100)) * 255).astype(np.uint8))
+    return path
+
+
+def test_estimate_prints_json_and_overlay(model_file, test_image, tmp_path):
+    overlay = tmp_path / "overlay.png"
+    result = CliRunner().invoke(cli, ["estimate", str(model_file), str(test_image), "--json",
+                                      "--overlay", str(overlay)])
+    assert result.exit_code == 0, result.output
+    data = json.loads(result.output)
+    assert data["found"] and abs(data["best"]["azimuth_deg"] - 100) < 15
+    assert overlay.stat().st_size > 1000
+
+
+def test_estimate_plain_text_and_weights(model_file, test_image, tmp_path):
+    runner = CliRunner()
+    result = runner.invoke(cli, ["estimate", str(model_file), str(test_image)])
+    assert result.exit_code == 0 and result.output.startswith("azimuth")
+    result = runner.invoke(cli, ["weights", str(model_file), "-o", str(tmp_path / "w.png")])
+    assert result.exit_code == 0 and (tmp_path / "w.png").is_file()
+
+
+def test_not_found_exit_code(model_file, tmp_path):
+    blank = tmp_path / "blank.png"
+    cv2.imwrite(str(blank), np.zeros((40, 40), np.uint8))
+    result = CliRunner().invoke(cli, ["estimate", str(model_file), str(blank)])
+    assert result.exit_code == 3
+
+
+@pytest.mark.parametrize("kind", ["missing", "corrupt", "foreign"])
+def test_bad_model_file(kind, test_image, tmp_path):
+    path = tmp_path / "m.npz"
+    if kind == "corrupt":
+        path.write_bytes(b"PK\x03\x04 broken")
+    elif kind == "foreign":
+        np.savez(path, x=np.zeros(2))
+    result = CliRunner().invoke(cli, ["estimate", str(path), str(test_image)])
+    assert result.exit_code == 1
+    assert "Error:" in result.output and "m.npz" in result.output
+
+
+def test_bad_image_and_csv(model_file, training_folder, tmp_path):
+    bad = tmp_path / "bad.png"
+    bad.write_text("nope")
+    result = CliRunner().invoke(cli, ["estimate", str(model_file), str(bad)])
+    assert result.exit_code == 1 and "bad.png: cannot decode" in result.output
+    folder = tmp_path / "t"
+    folder.mkdir()
+    (folder / "poses.csv").write_text("image,azimuth_deg\nx.png,nan\n")
+    cv2.imwrite(str(folder / "x.png"), np.zeros((8, 8), np.uint8))
+    out = tmp_path / "out.npz"
+    result = CliRunner().invoke(cli, ["train", str(folder), "-o", str(out)])
+    assert result.exit_code == 1 and "row 2" in result.output
+    assert not out.exists()
+
+
+def test_usage_errors(model_file, test_image):
+    runner = CliRunner()
+    assert runner.invoke(cli, ["estimate", str(model_file), str(test_image), "--bogus"]
+                         ).exit_code == 2
+    result = runner.invoke(cli, ["train", "x", "-o", "y", "--param", "nonsense=1"])
+    assert result.exit_code == 2 and "unknown estimator parameter" in result.output
+    result = runner.invoke(cli, ["train", "x", "-o", "y", "--layout", "coil"])
+    assert result.exit_code == 2 and "--objects" in result.output
+
+
+def test_installed_command(model_file, test_image):
+    exe = Path(sys.executable).parent / "posevote"
+    if not exe.exists():
+        pytest.skip("the posevote console script is not installed beside this Python")
+    proc = subprocess.run([str(exe), "estimate", str(model_file), str(test_image), "--json"],
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads(proc.stdout)["found"]
+    proc = subprocess.run([str(exe), "estimate", str(model_file), "/nonexistent.png"],
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 1 and proc.stderr.startswith("Error:")
+
+
+def test_demo_runs_end_to_end(tmp_path):
+    pytest.importorskip("pybullet")
+    result = CliRunner().invoke(cli, ["demo", "-o", str(tmp_path), "--images", "2"])
+    assert result.exit_code == 0, result.output
+    assert "median" in result.output
+    assert (tmp_path / "results.csv").read_text().count("\n") == 3
+    assert len(list(tmp_path.glob("test_*.png"))) == 2

@@ -1,0 +1,127 @@
+import numpy as np
+import pytest
+
+from posevote import NotFittedError, PoseEstimator
+from posevote.geometry import angular_error
+
+
+def test_estimates_between_training_views(fitted_estimator, draw):
+    from posevote.data import object_box
+
+    for truth in (50.0, 135.0, 290.0):
+        img = draw(np.radians(truth))
+        result = fitted_estimator.estimate(img)
+        assert result.found and result.best is result.modes[0]
+        # half the 20-degree training spacing is what a nearest view could do
+        assert np.degrees(angular_error(result.best.azimuth, np.radians(truth))) < 10.0
+        x, y, w, h = object_box(img)
+        assert result.best.position == pytest.approx((x + (w - 1) / 2, y + (h - 1) / 2), abs=6.0)
+
+
+def test_finds_shifted_rotated_scaled_object(synthetic_training, draw):
+    images, az, boxes = synthetic_training
+    est = PoseEstimator(inplane_range_deg=(-20, 20), scale_range=(0.8, 1.25), scale_steps=4)
+    est.fit(images, az, boxes=boxes)
+    truth = np.radians(100.0)
+    img = draw(truth, scale=1.1, inplane=np.radians(12), centre=(70.0, 60.0))
+    best = est.estimate(img).best
+    assert np.degrees(angular_error(best.azimuth, truth)) < 12
+    assert best.inplane_deg == pytest.approx(12.0, abs=5.0)
+    assert best.scale == pytest.approx(1.1, abs=0.1)
+
+
+def test_same_input_same_output(fitted_estimator, draw):
+    img = draw(np.radians(77.0))
+    a, b = fitted_estimator.estimate(img), fitted_estimator.estimate(img)
+    assert a.best == b.best and a.modes == b.modes
+
+
+def test_blank_image_is_not_found(fitted_estimator):
+    result = fitted_estimator.estimate(np.zeros((64, 64)))
+    assert not result.found and result.best is None and result.modes == ()
+
+
+def test_save_load_round_trip(fitted_estimator, draw, tmp_path):
+    path = tmp_path / "model.npz"
+    fitted_estimator.save(path)
+    loaded = PoseEstimator.load(path)
+    assert loaded.get_params() == fitted_estimator.get_params()
+    img = draw(np.radians(200.0))
+    assert loaded.estimate(img).best == fitted_estimator.estimate(img).best
+
+
+def test_unfitted_raises():
+    with pytest.raises(NotFittedError, match="not fitted"):
+        PoseEstimator().estimate(np.zeros((8, 8)))
+    with pytest.raises(NotFittedError, match="not fitted"):
+        PoseEstimator().save("x.npz")
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"position_sigma": -1}, "position_sigma must be a positive number"),
+        ({"scale_range": (1.2, 0.8)}, "scale_range"),
+        ({"inplane_range_deg": (10, -10)}, "inplane_range_deg"),
+        ({"scale_steps": 0}, "scale_steps must be an integer"),
+        ({"clutter_sigma": 0}, "clutter_sigma"),
+        ({"coherence_floor": 1.5}, "coherence_floor"),
+    ],
+)
+def test_bad_parameters(synthetic_training, kwargs, message):
+    images, az, boxes = synthetic_training
+    with pytest.raises(ValueError, match=message):
+        PoseEstimator(**kwargs).fit(images[:2], az[:2])
+
+
+def test_set_params_rejects_unknown():
+    with pytest.raises(ValueError, match="unknown parameter 'sigma'"):
+        PoseEstimator().set_params(sigma=1)
+
+
+def test_bad_training_input(synthetic_training):
+    images, az, boxes = synthetic_training
+    est = PoseEstimator()
+    with pytest.raises(ValueError, match="at least one"):
+        est.fit([], [])
+    with pytest.raises(ValueError, match="poses must have shape"):
+        est.fit(images[:2], az[:3])
+    with pytest.raises(ValueError, match="row 1 is not finite"):
+        est.fit(images[:2], [0.0, np.nan])
+    with pytest.raises(ValueError, match=r"images\[0\]: box .* is not inside"):
+        est.fit(images[:1], az[:1], boxes=[[100, 100, 50, 50]])
+    with pytest.raises(ValueError, match=r"images\[0\]: no edges found"):
+        est.fit([np.zeros((32, 32))], [0.0])
+    with pytest.raises(ValueError, match="boxes must have 2 rows"):
+        est.fit(images[:2], az[:2], boxes=[[0, 0, 5, 5]])
+    with pytest.raises(ValueError, match="mask shape"):
+        est.fit(images[:1], az[:1], masks=[np.ones((3, 3), bool)])
+
+
+def test_masks_and_instances(synthetic_training):
+    images, az, _ = synthetic_training
+    masks = [im > 0.05 for im in images]
+    est = PoseEstimator().fit(images, az, masks=masks, instances=["a"] * 9 + ["b"] * 9)
+    assert est.model_.instance_names == ("a", "b")
+    assert est.model_.n_views == 18
+
+
+def test_weights_and_fitting_switch_off(synthetic_training, draw):
+    images, az, boxes = synthetic_training
+    est = PoseEstimator(weights=False, fitting=False, local_refinement=False)
+    est.fit(images, az, boxes=boxes)
+    best = est.estimate(draw(np.radians(40.0))).best
+    assert not best.refined
+    assert best.azimuth_deg % 20 == pytest.approx(0.0, abs=1e-6) or \
+        best.azimuth_deg % 20 == pytest.approx(20.0, abs=1e-6)
+
+
+def test_coil_instance_real_data(coil_dir):
+    from posevote.data import read_coil
+
+    train = read_coil(coil_dir, objects=[6], azimuths_deg=range(0, 360, 20))
+    test = read_coil(coil_dir, objects=[6], azimuths_deg=[45, 130, 255])
+    est = PoseEstimator().fit(train.load_images(), train.poses, boxes=train.boxes)
+    errors = [np.degrees(angular_error(est.estimate(img).best.azimuth, pose[0]))
+              for img, pose in zip(test.load_images(), test.poses, strict=True)]
+    assert np.median(errors) < 5.0
