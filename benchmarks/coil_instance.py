@@ -27,6 +27,8 @@ from __future__ import annotations
 
 import argparse
 import ast
+import contextlib
+import io
 import json
 import os
 import sys
@@ -124,6 +126,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--rows", default=",".join(ROWS),
                     help="comma-separated ablation rows to run (default: all)")
     ap.add_argument("--json", help="write per-object results here")
+    ap.add_argument("--markdown", help="also write the printed report here, as a markdown file")
     args = ap.parse_args(argv)
     params = {}
     for item in args.param:
@@ -141,6 +144,21 @@ def main(argv: list[str] | None = None) -> int:
                                 [params] * len(objects), [args.seed] * len(objects),
                                 [rows] * len(objects)))
     wall = time.perf_counter() - t0
+    report = io.StringIO()
+    with contextlib.redirect_stdout(report):
+        print_report(args, params, objects, rows, results, wall)
+    print(report.getvalue(), end="")
+    if args.json:
+        Path(args.json).write_text(json.dumps(results))
+    if args.markdown:
+        from posevote._io import atomic_write_text
+
+        command = "python benchmarks/coil_instance.py " + " ".join(argv or sys.argv[1:])
+        atomic_write_text(args.markdown, f"```\n$ {command}\n{report.getvalue()}```\n")
+    return 0
+
+
+def print_report(args, params, objects, rows, results, wall) -> None:
     protocol = "3-fold CV on the training views 0:20:340" if args.cv else "train 0:20:340, test other 54"
     print(f"COIL-100 instance models, {len(objects)} objects, {protocol}"
           f"{', cluttered + 20% occluded' if args.clutter else ''}; params {params or 'defaults'}")
@@ -162,10 +180,7 @@ def main(argv: list[str] | None = None) -> int:
         f"{np.mean(r[last]['errors_deg']):.1f}" for r in results))
     print(f"training time per object: median {np.median([r['train_s'] for r in results]):.2f} s; "
           f"features per model: median {np.median([r['n_features'] for r in results]):.0f}; "
-          f"wall {wall:.0f} s with {args.jobs} processes")
-    if args.json:
-        Path(args.json).write_text(json.dumps(results))
-    return 0
+          f"wall {wall:.0f} s with {args.jobs} processes, one core each")
 
 
 if __name__ == "__main__":

@@ -30,7 +30,7 @@ from posevote.model.kernels import kappa_for_width
 from posevote.model.modelfile import load_model, save_model
 from posevote.model.weights import feature_weights
 from posevote.refinement.fitting import find_modes, refine_mode
-from posevote.refinement.local import polish_pose
+from posevote.refinement.local import polish_pose, profile_refine
 from posevote.results import PoseEstimate
 
 ImageLike = str | Path | NDArray
@@ -55,10 +55,12 @@ class PoseEstimator:
         Weight training features by pose specificity (Eq. 4).
     fitting : bool, default True
         Refine each mode by local distribution fitting (Sec. II-B).
-    local_refinement : bool, default True
-        Then maximise the exact p(w) locally over in-plane angle, scale and
-        translation with the narrow kernel (beyond the paper).
-    position_sigma : float, default 2.0
+    local_refinement : bool, default False
+        For the best mode, maximise the exact p(w) with the narrow kernel
+        over in-plane angle, scale and translation at each nearby viewpoint,
+        fit the viewpoint to these maximised scores, and polish the result
+        (beyond the paper; :func:`posevote.refinement.local.profile_refine`).
+    position_sigma : float, default 3.0
         Combined appearance kernel width in position, pixels at scale 1.
     orientation_kappa : float, default 8.0
         Combined appearance kernel concentration in (doubled) orientation.
@@ -86,12 +88,15 @@ class PoseEstimator:
         Feature budget per training view.
     max_test_features : int or None, default 2500
         Feature budget per test image (None: spacing only).
-    clutter_sigma : float or None, default 4.0
+    clutter_sigma : float or None, default None
         Weight test edge points by their local orientation coherence and
         crowding at this scale (pixels), so that contours outvote texture;
         None: the paper's unweighted test density.
     coherence_floor : float, default 0.3
         Test edge points at or below this coherence are ignored.
+    crowding_limit : float, default 1.0
+        Test edge points up to this crowding (local edge density relative to
+        a lone contour) keep their full weight; denser ones are discounted.
     k1_cutoff : float, default 0.1
         Training views whose pose kernel K1 is below this do not take part in
         a viewpoint's probe.
@@ -100,6 +105,8 @@ class PoseEstimator:
     max_voters : int or None, default 200
         Training features that vote per probe (an even subset); all of them
         count in the exact score.
+    vote_candidates : int, default 2
+        Vote peaks per probe whose exact score is computed.
     max_modes : int, default 3
         Modes reported per image.
     min_score : float, default 0.0
@@ -111,8 +118,8 @@ class PoseEstimator:
         *,
         weights: bool = True,
         fitting: bool = True,
-        local_refinement: bool = True,
-        position_sigma: float = 2.0,
+        local_refinement: bool = False,
+        position_sigma: float = 3.0,
         orientation_kappa: float = 8.0,
         viewpoint_bandwidth_deg: float | None = None,
         viewpoint_subdivisions: int = 1,
@@ -125,11 +132,13 @@ class PoseEstimator:
         edge_spacing: float = 2.0,
         max_train_features: int = 300,
         max_test_features: int | None = 2500,
-        clutter_sigma: float | None = 4.0,
+        clutter_sigma: float | None = None,
         coherence_floor: float = 0.3,
+        crowding_limit: float = 1.0,
         k1_cutoff: float = 0.1,
         vote_cell: float | None = None,
         max_voters: int | None = 200,
+        vote_candidates: int = 2,
         max_modes: int = 3,
         min_score: float = 0.0,
     ) -> None:
@@ -151,9 +160,11 @@ class PoseEstimator:
         self.max_test_features = max_test_features
         self.clutter_sigma = clutter_sigma
         self.coherence_floor = coherence_floor
+        self.crowding_limit = crowding_limit
         self.k1_cutoff = k1_cutoff
         self.vote_cell = vote_cell
         self.max_voters = max_voters
+        self.vote_candidates = vote_candidates
         self.max_modes = max_modes
         self.min_score = min_score
 
@@ -180,7 +191,8 @@ class PoseEstimator:
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be a positive number, got {value!r}")
-        for name in ("viewpoint_subdivisions", "scale_steps", "max_train_features", "max_modes"):
+        for name in ("viewpoint_subdivisions", "scale_steps", "max_train_features", "max_modes",
+                     "vote_candidates"):
             value = getattr(self, name)
             if not (isinstance(value, (int, np.integer)) and value >= 1):
                 raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
@@ -197,6 +209,8 @@ class PoseEstimator:
             raise ValueError(f"clutter_sigma must be positive or None, got {self.clutter_sigma!r}")
         if not 0 <= self.coherence_floor < 1:
             raise ValueError(f"coherence_floor must be in [0, 1), got {self.coherence_floor!r}")
+        if not self.crowding_limit >= 1:
+            raise ValueError(f"crowding_limit must be >= 1, got {self.crowding_limit!r}")
         if not 0 <= self.k1_cutoff < 1:
             raise ValueError(f"k1_cutoff must be in [0, 1), got {self.k1_cutoff!r}")
         if self.viewpoint_bandwidth_deg is not None and not self.viewpoint_bandwidth_deg > 0:
@@ -391,7 +405,8 @@ class PoseEstimator:
         maps = prepare_test(feats, img.shape, position_sigma=sigma,
                             orientation_kappa=self.orientation_kappa,
                             edge_spacing=self.edge_spacing, clutter_sigma=self.clutter_sigma,
-                            coherence_floor=self.coherence_floor)
+                            coherence_floor=self.coherence_floor,
+                            crowding_limit=self.crowding_limit)
         return feats, maps
 
     def _probe(self, maps: TestMaps, progress: Callable[[int], None] | None) -> ProbeSet:
@@ -401,7 +416,8 @@ class PoseEstimator:
         return probe_poses(model, maps, azimuths=az, elevations=el, inplanes=inplanes,
                            scales=scales, viewpoint_kappa=self.viewpoint_kappa_,
                            use_weights=self.weights, k1_cutoff=self.k1_cutoff,
-                           cell=self.vote_cell, max_voters=self.max_voters, progress=progress)
+                           cell=self.vote_cell, max_voters=self.max_voters,
+                           n_candidates=self.vote_candidates, progress=progress)
 
     def probe(self, image: ImageLike, *, progress: Callable[[int], None] | None = None
               ) -> tuple[ProbeSet, EdgeFeatures]:
@@ -444,9 +460,15 @@ class PoseEstimator:
         modes = find_modes(probes, max_modes=self.max_modes)
         hyps = [refine_mode(probes, v, fit=self.fitting) for v in modes]
         if self.local_refinement and hyps:
+            # Only the best mode is polished: the others are reported as
+            # alternatives, and their fitted pose is enough for that.
             _, fine = self._prepare(image, sigma=self.position_sigma)
-            hyps = [polish_pose(h, self.model_, fine, viewpoint_kappa=self.viewpoint_kappa_,
-                                use_weights=self.weights, k1_cutoff=self.k1_cutoff) for h in hyps]
+            kw = dict(viewpoint_kappa=self.viewpoint_kappa_, use_weights=self.weights,
+                      k1_cutoff=self.k1_cutoff)
+            if self.fitting:
+                hyps[0] = profile_refine(probes, modes[0], self.model_, fine, **kw)
+            else:
+                hyps[0] = polish_pose(hyps[0], self.model_, fine, **kw)
         kept = tuple(h for h in hyps if h.score > self.min_score)
         return PoseEstimate(found=bool(kept), best=kept[0] if kept else None, modes=kept,
                             n_test_features=len(feats), seconds=time.perf_counter() - start)

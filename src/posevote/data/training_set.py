@@ -36,7 +36,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from posevote.data.images import read_image, read_mask
 
@@ -145,7 +145,12 @@ def read_poses_csv(folder: str | Path) -> TrainingSet:
         has_box = [c in columns for c in _BOX_COLUMNS]
         if any(has_box) and not all(has_box):
             raise ValueError(f"{path}: give all four box columns {_BOX_COLUMNS} or none")
-        images, poses, boxes, masks, instances, categories = [], [], [], [], [], set()
+        images: list[Path] = []
+        poses: list[NDArray[np.float64]] = []
+        boxes: list[list[float]] = []
+        masks: list[Path | None] = []
+        instances: list[str] = []
+        categories: set[str] = set()
         for row_number, row in enumerate(reader, start=2):
             if None in row:
                 raise ValueError(f"{path}, row {row_number}: more fields than header columns")
@@ -257,7 +262,7 @@ def object_box(image: NDArray[np.float64], *, margin: float = 0.05) -> NDArray[n
 
 
 def read_coil(folder: str | Path, *, objects: Sequence[int],
-              azimuths_deg: Sequence[float] | None = None, category: str = "") -> TrainingSet:
+              azimuths_deg: ArrayLike | None = None, category: str = "") -> TrainingSet:
     """COIL-100 views as a training set (files ``objN__A.png``, A in degrees).
 
     The box of each view is found by thresholding the dark background
@@ -281,7 +286,8 @@ def read_coil(folder: str | Path, *, objects: Sequence[int],
     folder = Path(folder)
     if not folder.is_dir():
         raise FileNotFoundError(f"COIL-100 folder not found: {folder}")
-    wanted = None if azimuths_deg is None else {round(float(a)) % 360 for a in azimuths_deg}
+    wanted = None if azimuths_deg is None else {
+        round(float(a)) % 360 for a in np.atleast_1d(np.asarray(azimuths_deg, dtype=float))}
     found: dict[int, list[tuple[int, Path]]] = {}
     for p in folder.iterdir():
         m = _COIL_NAME.match(p.name)

@@ -102,8 +102,10 @@ def draw_overlay(image: NDArray, estimate: PoseEstimate, *, truth_box: Sequence[
     """
     gray = as_gray_float(image)
     zoom = max(1, int(np.ceil(256 / max(gray.shape))))
-    canvas = cv2.cvtColor((gray * 255).astype(np.uint8), cv2.COLOR_GRAY2BGR)
-    canvas = cv2.resize(canvas, None, fx=zoom, fy=zoom, interpolation=cv2.INTER_NEAREST)
+    canvas = np.asarray(cv2.cvtColor((gray * 255).astype(np.uint8), cv2.COLOR_GRAY2BGR),
+                        dtype=np.uint8)
+    canvas = np.asarray(cv2.resize(canvas, None, fx=zoom, fy=zoom,
+                                   interpolation=cv2.INTER_NEAREST), dtype=np.uint8)
     if truth_box is not None:
         x, y, w, h = (float(t) * zoom for t in truth_box)
         cv2.rectangle(canvas, (int(x), int(y)), (int(x + w), int(y + h)), (0, 200, 0), 1)

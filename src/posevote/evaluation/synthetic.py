@@ -65,7 +65,8 @@ def clutter_background(shape: tuple[int, int], *, rng: np.random.Generator) -> N
     r = int(rng.integers(0, h - side + 1))
     c = int(rng.integers(0, w - side + 1))
     crop = src[r:r + side, c:c + side]
-    return cv2.resize(crop, (shape[1], shape[0]), interpolation=cv2.INTER_AREA)
+    return np.asarray(cv2.resize(crop, (shape[1], shape[0]), interpolation=cv2.INTER_AREA),
+                      dtype=np.float64)
 
 
 def paste_on_clutter(view: NDArray, box: NDArray[np.float64], *, rng: np.random.Generator,

@@ -112,13 +112,15 @@ def detect_edges(
                          f"got {low_threshold}, {high_threshold}")
     if mask is not None and mask.shape != gray.shape:
         raise ValueError(f"mask has shape {mask.shape}, the image {gray.shape}")
-    img = gray.astype(np.float32)
+    img = np.asarray(gray, dtype=np.float32)
     if sigma > 0:
-        img = cv2.GaussianBlur(img, (0, 0), sigmaX=sigma, sigmaY=sigma,
-                               borderType=cv2.BORDER_REPLICATE)
+        img = np.asarray(cv2.GaussianBlur(img, (0, 0), sigmaX=sigma, sigmaY=sigma,
+                                          borderType=cv2.BORDER_REPLICATE), dtype=np.float32)
     # Sobel / 8 is the per-pixel derivative of a smooth ramp.
-    gx = cv2.Sobel(img, cv2.CV_32F, 1, 0, ksize=3, borderType=cv2.BORDER_REPLICATE) / 8.0
-    gy = cv2.Sobel(img, cv2.CV_32F, 0, 1, ksize=3, borderType=cv2.BORDER_REPLICATE) / 8.0
+    gx = np.asarray(cv2.Sobel(img, cv2.CV_32F, 1, 0, ksize=3, borderType=cv2.BORDER_REPLICATE),
+                    dtype=np.float32) / np.float32(8.0)
+    gy = np.asarray(cv2.Sobel(img, cv2.CV_32F, 0, 1, ksize=3, borderType=cv2.BORDER_REPLICATE),
+                    dtype=np.float32) / np.float32(8.0)
     dx = np.clip(np.rint(gx * _GRADIENT_UNITS), -32767, 32767).astype(np.int16)
     dy = np.clip(np.rint(gy * _GRADIENT_UNITS), -32767, 32767).astype(np.int16)
     edges = cv2.Canny(dx, dy, low_threshold * _GRADIENT_UNITS, high_threshold * _GRADIENT_UNITS,

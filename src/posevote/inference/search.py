@@ -73,7 +73,7 @@ def viewpoint_grid(model: PoseModel, *, subdivisions: int = 1
     pairs = np.unique(np.round(np.stack([model.view_azimuth, model.view_elevation], 1), 9), axis=0)
     az, el = pairs[:, 0], pairs[:, 1]
     if np.ptp(el) > 1e-9 or subdivisions == 1 or len(az) < 2:
-        return az, el
+        return np.asarray(az, dtype=np.float64), np.asarray(el, dtype=np.float64)
     az = np.sort(az)
     gaps = np.diff(np.append(az, az[0] + 2 * np.pi))
     steps = np.arange(subdivisions) / subdivisions

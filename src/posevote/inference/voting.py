@@ -116,8 +116,8 @@ def edge_statistics(features: EdgeFeatures, shape: tuple[int, int], *, sigma: fl
 def prepare_test(features: EdgeFeatures, shape: tuple[int, int], *, position_sigma: float,
                  orientation_kappa: float, edge_spacing: float = 2.0,
                  clutter_sigma: float | None = None, coherence_floor: float = 0.3,
-                 vote_bins: int = 16, density_bins: int = 16, vote_cutoff: float = 0.2
-                 ) -> TestMaps:
+                 crowding_limit: float = 1.0, vote_bins: int = 16, density_bins: int = 16,
+                 vote_cutoff: float = 0.2) -> TestMaps:
     """Sort the test features by orientation and tabulate phi (Eq. 2).
 
     Parameters
@@ -141,6 +141,9 @@ def prepare_test(features: EdgeFeatures, shape: tuple[int, int], *, position_sig
         Features weighted 0.05 or less are dropped.
     coherence_floor : float, optional
         Coherence at and below which a test feature is ignored.
+    crowding_limit : float, optional
+        Crowding (relative to a lone contour) up to which a test feature keeps
+        its full weight; above it the weight falls as ``limit / crowding``.
     vote_bins : int, optional
         Orientation bins used to find compatible pairs when voting.
     density_bins : int, optional
@@ -158,7 +161,7 @@ def prepare_test(features: EdgeFeatures, shape: tuple[int, int], *, position_sig
         coherence, crowding = edge_statistics(features, shape, sigma=clutter_sigma,
                                               spacing=edge_spacing)
         weight = np.clip((coherence - coherence_floor) / (1.0 - coherence_floor), 0.0, 1.0)
-        weight /= np.maximum(crowding, 1.0)
+        weight *= crowding_limit / np.maximum(crowding, crowding_limit)
         keep = weight > 0.05
         features, weight = features.select(keep), weight[keep]
     else:

@@ -9,9 +9,10 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from posevote.features.edges import EdgeFeatures
 from posevote.geometry import rotate_points, viewing_direction
@@ -70,6 +71,10 @@ class PoseModel:
 
     def view_directions(self) -> NDArray[np.float64]:
         """Viewing direction of each training view, shape (K, 3)."""
+        return self._view_directions
+
+    @cached_property
+    def _view_directions(self) -> NDArray[np.float64]:
         return viewing_direction(self.view_azimuth, self.view_elevation)
 
     def with_weights(self, weight: NDArray[np.float64]) -> PoseModel:
@@ -102,7 +107,7 @@ def build_model(
     centers: NDArray[np.float64],
     scales: NDArray[np.float64],
     box_sizes: NDArray[np.float64],
-    instances: Sequence[int],
+    instances: ArrayLike,
     instance_names: Sequence[str],
     reference_size: float,
     category: str = "",
@@ -122,7 +127,7 @@ def build_model(
         Pixels per reference unit of each view.
     box_sizes : ndarray, shape (K, 2)
         Box width and height of each view, pixels.
-    instances : sequence of int
+    instances : array_like of int
         Instance index of each view.
     instance_names : sequence of str
         Names of the instances.

@@ -10,7 +10,9 @@ log-scale, times an amplitude, plus a floor::
 
 The fitted means are the estimate: this is what takes accuracy below the
 spacing of the training views. Dimensions with fewer than three distinct
-probed values in the neighbourhood are not fitted (the probe value is kept).
+probed values in the neighbourhood are not fitted (the probe value is kept);
+widths are bounded to four grid steps, and an in-plane or scale mean that
+ends on its bound (a flat profile) is replaced by the best probe's value.
 """
 
 from __future__ import annotations
@@ -54,7 +56,7 @@ def find_modes(probes: ProbeSet, *, max_modes: int = 3, min_separation: float = 
     return modes
 
 
-def _spacing(probes: ProbeSet) -> float:
+def probe_spacing(probes: ProbeSet) -> float:
     """Median angle between a probed viewpoint and its nearest neighbour."""
     d = viewing_direction(probes.azimuth, probes.elevation)
     if len(d) < 2:
@@ -167,7 +169,7 @@ def refine_mode(probes: ProbeSet, viewpoint: int, *, radius_steps: float = 2.5, 
 def _fit(probes: ProbeSet, v0: int, a0: int, s0: int, radius_steps: float, span: int
          ) -> tuple[float, float, float, float] | None:
     directions = viewing_direction(probes.azimuth, probes.elevation)
-    step_v = _spacing(probes)
+    step_v = probe_spacing(probes)
     views = np.flatnonzero(directions @ directions[v0] >= np.cos(radius_steps * step_v))
     a_idx = np.arange(max(0, a0 - span), min(len(probes.inplane), a0 + span + 1))
     s_idx = np.arange(max(0, s0 - span), min(len(probes.scale), s0 + span + 1))
@@ -188,36 +190,53 @@ def _fit(probes: ProbeSet, v0: int, a0: int, s0: int, radius_steps: float, span:
         k0 = np.log(2.0) / (1.0 - np.cos(step_v))
         if probes.turntable:
             p0 += [az0, k0]
-            lo += [az0 - step_v, k0 / 50.0]
+            lo += [az0 - step_v, k0 / 16.0]
             hi += [az0 + step_v, k0 * 50.0]
         else:
             p0 += [az0, el0, k0]
-            lo += [az0 - step_v, el0 - step_v, k0 / 50.0]
+            lo += [az0 - step_v, el0 - step_v, k0 / 16.0]
             hi += [az0 + step_v, el0 + step_v, k0 * 50.0]
     if layout["inplane"]:
         step_a = float(np.median(np.diff(probes.inplane)))
         k0 = np.log(2.0) / (1.0 - np.cos(step_a))
         mu0 = probes.inplane[a0]
         p0 += [mu0, k0]
-        lo += [mu0 - step_a, k0 / 50.0]
+        lo += [mu0 - step_a, k0 / 16.0]
         hi += [mu0 + step_a, k0 * 50.0]
     if layout["scale"]:
         step_s = float(np.median(np.diff(np.log(probes.scale))))
         mu0 = float(np.log(probes.scale[s0]))
         p0 += [mu0, step_s]
         lo += [mu0 - step_s, step_s / 20.0]
-        hi += [mu0 + step_s, step_s * 20.0]
+        hi += [mu0 + step_s, step_s * 4.0]
     p0 = np.clip(np.asarray(p0, dtype=float), lo, hi)
     try:
-        result = least_squares(lambda p: _model(p, layout, X)[0] - y, p0,
-                               jac=lambda p: _model(p, layout, X)[1], bounds=(lo, hi),
-                               method="trf", max_nfev=100, x_scale="jac")
+        memo: dict[bytes, tuple[NDArray[np.float64], NDArray[np.float64]]] = {}
+
+        def evaluate(p: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+            # scipy asks for the residuals and the Jacobian at the same point
+            # separately; compute both once.
+            key = p.tobytes()
+            if key not in memo:
+                memo.clear()
+                memo[key] = _model(p, layout, X)
+            return memo[key]
+
+        result = least_squares(lambda p: evaluate(p)[0] - y, p0, jac=lambda p: evaluate(p)[1],
+                               bounds=(lo, hi), method="trf", max_nfev=100, x_scale="jac")
     except (ValueError, np.linalg.LinAlgError):
         return None
     # Status 0 (evaluation budget spent) still leaves a usable, bounded fit.
     if result.status < 0 or not np.all(np.isfinite(result.x)):
         return None
-    p = result.x
+    # An in-plane or scale mean that ends on its bound (a flat profile) is not
+    # trusted: that dimension keeps the best probe's value. Viewpoint means
+    # may legitimately reach the bound (the truth halfway between views).
+    p = result.x.copy()
+    n_view = (2 if probes.turntable else 3) if layout["view"] else 0
+    on_bound = np.isclose(p, lo) | np.isclose(p, hi)
+    on_bound[:2 + n_view] = False
+    p[on_bound] = p0[on_bound]
     i = 2
     az, el = az0, el0
     alpha, scale = probes.inplane[a0], probes.scale[s0]
