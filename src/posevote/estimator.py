@@ -77,7 +77,9 @@ class PoseEstimator:
     scale_range : (float, float), default (0.9, 1.1)
         Range of scales searched, relative to the training images.
     scale_steps : int, default 3
-        Number of scales searched (log-spaced).
+        Number of scales searched (log-spaced). When widening
+        ``scale_range``, keep the log-scale step near the in-plane step in
+        radians (0.7-1.3 with 10-degree steps: 5 scales).
     edge_sigma : float, default 1.0
         Canny smoothing, pixels.
     edge_thresholds : (float, float), default (0.02, 0.05)
