@@ -31,6 +31,7 @@ import contextlib
 import io
 import json
 import os
+import shlex
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -155,7 +156,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.markdown:
         from posevote._io import atomic_write_text
 
-        command = "python benchmarks/coil_instance.py " + " ".join(argv or sys.argv[1:])
+        command = shlex.join(["python", "benchmarks/coil_instance.py", *(argv or sys.argv[1:])])
         atomic_write_text(args.markdown, f"```\n$ {command}\n{report.getvalue()}```\n")
     return 0
 

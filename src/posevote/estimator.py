@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from scipy.ndimage import binary_dilation
 
 from posevote.data.images import as_gray_float, read_image, read_mask
 from posevote.features.edges import EdgeFeatures, box_mask, detect_edges
@@ -324,8 +325,6 @@ class PoseEstimator:
                                  f"the {img.shape[1]}x{img.shape[0]} image")
             region = box_mask(img.shape, box)
             if mask is not None:
-                from scipy.ndimage import binary_dilation
-
                 region &= binary_dilation(mask, iterations=2)
             f = self._edges(img, mask=region, max_points=self.max_train_features)
             if len(f) == 0:
@@ -401,15 +400,17 @@ class PoseEstimator:
         return float(np.sqrt(self.position_sigma**2 + (r * d_alpha / 2.0) ** 2
                              + (r * d_log_s / 2.0) ** 2))
 
-    def _prepare(self, image: ImageLike, *, sigma: float) -> tuple[EdgeFeatures, TestMaps]:
+    def _features(self, image: ImageLike) -> tuple[EdgeFeatures, tuple[int, int]]:
         img = _load(image, name=str(image) if isinstance(image, (str, Path)) else "image")
         feats = self._edges(img, mask=None, max_points=self.max_test_features)
-        maps = prepare_test(feats, img.shape, position_sigma=sigma,
+        return feats, (int(img.shape[0]), int(img.shape[1]))
+
+    def _maps(self, feats: EdgeFeatures, shape: tuple[int, int], *, sigma: float) -> TestMaps:
+        return prepare_test(feats, shape, position_sigma=sigma,
                             orientation_kappa=self.orientation_kappa,
                             edge_spacing=self.edge_spacing, clutter_sigma=self.clutter_sigma,
                             coherence_floor=self.coherence_floor,
                             crowding_limit=self.crowding_limit)
-        return feats, maps
 
     def _probe(self, maps: TestMaps, progress: Callable[[int], None] | None) -> ProbeSet:
         model = self._check_fitted()
@@ -440,7 +441,8 @@ class PoseEstimator:
         """
         self._check_fitted()
         self._validate_params()
-        feats, maps = self._prepare(image, sigma=self.search_sigma(*self.search_grid()))
+        feats, shape = self._features(image)
+        maps = self._maps(feats, shape, sigma=self.search_sigma(*self.search_grid()))
         return self._probe(maps, progress), feats
 
     def estimate(self, image: ImageLike) -> PoseEstimate:
@@ -458,19 +460,25 @@ class PoseEstimator:
             above ``min_score``.
         """
         start = time.perf_counter()
-        probes, feats = self.probe(image)
+        self._check_fitted()
+        self._validate_params()
+        feats, shape = self._features(image)
+        probes = self._probe(self._maps(feats, shape, sigma=self.search_sigma(*self.search_grid())),
+                             None)
         modes = find_modes(probes, max_modes=self.max_modes)
         hyps = [refine_mode(probes, v, fit=self.fitting) for v in modes]
         if self.local_refinement and hyps:
             # Only the best mode is polished: the others are reported as
             # alternatives, and their fitted pose is enough for that.
-            _, fine = self._prepare(image, sigma=self.position_sigma)
-            kw = dict(viewpoint_kappa=self.viewpoint_kappa_, use_weights=self.weights,
-                      k1_cutoff=self.k1_cutoff)
+            fine = self._maps(feats, shape, sigma=self.position_sigma)
             if self.fitting:
-                hyps[0] = profile_refine(probes, modes[0], self.model_, fine, **kw)
+                hyps[0] = profile_refine(probes, modes[0], self.model_, fine,
+                                         viewpoint_kappa=self.viewpoint_kappa_,
+                                         use_weights=self.weights, k1_cutoff=self.k1_cutoff)
             else:
-                hyps[0] = polish_pose(hyps[0], self.model_, fine, **kw)
+                hyps[0] = polish_pose(hyps[0], self.model_, fine,
+                                      viewpoint_kappa=self.viewpoint_kappa_,
+                                      use_weights=self.weights, k1_cutoff=self.k1_cutoff)
         kept = tuple(h for h in hyps if h.score > self.min_score)
         return PoseEstimate(found=bool(kept), best=kept[0] if kept else None, modes=kept,
                             n_test_features=len(feats), seconds=time.perf_counter() - start)

@@ -14,7 +14,8 @@ def scene(fitted_estimator, draw):
     est = fitted_estimator
     img = draw(np.radians(60.0), scale=1.05, inplane=np.radians(4.0), centre=(66.0, 61.0))
     probes, _ = est.probe(img)
-    _, fine = est._prepare(img, sigma=est.position_sigma)
+    feats, shape = est._features(img)
+    fine = est._maps(feats, shape, sigma=est.position_sigma)
     x, y, w, h = object_box(img)
     return est, probes, fine, (x + (w - 1) / 2, y + (h - 1) / 2)
 

@@ -14,7 +14,7 @@ from functools import cached_property
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from posevote.features.edges import EdgeFeatures
+from posevote.features.edges import EdgeFeatures, normalize_features
 from posevote.geometry import rotate_points, viewing_direction
 from posevote.model.kernels import orientation_kernel, position_kernel, viewpoint_kernel
 
@@ -83,22 +83,6 @@ class PoseModel:
         fields["weight"] = np.asarray(weight, dtype=np.float64)
         return PoseModel(**fields)
 
-    def select_instances(self, names: Sequence[str]) -> PoseModel:
-        """The model restricted to the views of the given instances."""
-        idx = [self.instance_names.index(n) for n in names]
-        keep_view = np.isin(self.view_instance, idx)
-        new_index = np.cumsum(keep_view) - 1
-        keep_feat = keep_view[self.view]
-        remap = np.full(len(self.instance_names), -1)
-        remap[idx] = np.arange(len(idx))
-        return PoseModel(
-            xy=self.xy[keep_feat], theta=self.theta[keep_feat],
-            view=new_index[self.view[keep_feat]], weight=self.weight[keep_feat],
-            view_azimuth=self.view_azimuth[keep_view], view_elevation=self.view_elevation[keep_view],
-            view_box=self.view_box[keep_view], view_instance=remap[self.view_instance[keep_view]],
-            instance_names=tuple(names), reference_size=self.reference_size, category=self.category,
-        )
-
 
 def build_model(
     view_features: Sequence[EdgeFeatures],
@@ -143,9 +127,10 @@ def build_model(
     """
     xy, theta, view = [], [], []
     for k, feats in enumerate(view_features):
-        inplane = poses[k, 2]
-        xy.append(rotate_points(feats.xy - centers[k], -inplane) / scales[k])
-        theta.append(np.mod(feats.theta - inplane, np.pi))
+        upright = normalize_features(feats, center=centers[k], scale=float(scales[k]),
+                                     inplane=float(poses[k, 2]))
+        xy.append(upright.xy)
+        theta.append(upright.theta)
         view.append(np.full(len(feats), k, dtype=np.int64))
     all_theta = np.concatenate(theta) if theta else np.zeros(0)
     return PoseModel(
