@@ -11,10 +11,12 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from numpy.typing import NDArray
 
+from posevote.geometry import viewing_direction
 from posevote.inference.voting import TestMaps, search_translations
 from posevote.model.density import PoseModel, viewpoint_weights
 
@@ -46,6 +48,11 @@ class ProbeSet:
     score: NDArray[np.float64]
     translation: NDArray[np.float64]
     box: NDArray[np.float64]
+
+    @cached_property
+    def directions(self) -> NDArray[np.float64]:
+        """Viewing direction of each probed viewpoint, shape (V, 3)."""
+        return viewing_direction(self.azimuth, self.elevation)
 
     @property
     def turntable(self) -> bool:

@@ -43,7 +43,7 @@ def find_modes(probes: ProbeSet, *, max_modes: int = 3, min_separation: float = 
     profile = probes.score.max(axis=(1, 2))
     if profile.size == 0 or profile.max() <= 0:
         return []
-    directions = viewing_direction(probes.azimuth, probes.elevation)
+    directions = probes.directions
     cos_sep = np.cos(min_separation)
     modes: list[int] = []
     for v in np.argsort(-profile, kind="stable"):
@@ -58,12 +58,19 @@ def find_modes(probes: ProbeSet, *, max_modes: int = 3, min_separation: float = 
 
 def probe_spacing(probes: ProbeSet) -> float:
     """Median angle between a probed viewpoint and its nearest neighbour."""
-    d = viewing_direction(probes.azimuth, probes.elevation)
+    d = probes.directions
     if len(d) < 2:
         return np.pi
     cosines = np.clip(d @ d.T, -1.0, 1.0)
     np.fill_diagonal(cosines, -1.0)
     return float(np.median(np.arccos(cosines.max(axis=1))))
+
+
+def neighbour_viewpoints(probes: ProbeSet, viewpoint: int, *, radius_steps: float
+                         ) -> NDArray[np.intp]:
+    """Probed viewpoints within ``radius_steps`` probe spacings of ``viewpoint``."""
+    d = probes.directions
+    return np.flatnonzero(d @ d[viewpoint] >= np.cos(radius_steps * probe_spacing(probes)))
 
 
 def _view_params(p: NDArray[np.float64], fixed_el: float | None) -> tuple[float, float, float]:
@@ -168,9 +175,9 @@ def refine_mode(probes: ProbeSet, viewpoint: int, *, radius_steps: float = 2.5, 
 
 def _fit(probes: ProbeSet, v0: int, a0: int, s0: int, radius_steps: float, span: int
          ) -> tuple[float, float, float, float] | None:
-    directions = viewing_direction(probes.azimuth, probes.elevation)
+    directions = probes.directions
     step_v = probe_spacing(probes)
-    views = np.flatnonzero(directions @ directions[v0] >= np.cos(radius_steps * step_v))
+    views = neighbour_viewpoints(probes, v0, radius_steps=radius_steps)
     a_idx = np.arange(max(0, a0 - span), min(len(probes.inplane), a0 + span + 1))
     s_idx = np.arange(max(0, s0 - span), min(len(probes.scale), s0 + span + 1))
     vv, aa, ss = np.meshgrid(views, a_idx, s_idx, indexing="ij")
@@ -254,7 +261,7 @@ def _fit(probes: ProbeSet, v0: int, a0: int, s0: int, radius_steps: float, span:
 
 def _box_at(probes: ProbeSet, az: float, el: float) -> NDArray[np.float64]:
     """Box size at a continuous viewpoint: blend of the two nearest probes."""
-    d = viewing_direction(probes.azimuth, probes.elevation) @ viewing_direction(az, el)
+    d = probes.directions @ viewing_direction(az, el)
     near = np.argsort(-d)[:2]
     ang = np.arccos(np.clip(d[near], -1, 1)) + 1e-9
     return np.average(probes.box[near], axis=0, weights=1.0 / ang)

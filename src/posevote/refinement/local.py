@@ -15,11 +15,10 @@ from dataclasses import replace
 import numpy as np
 from scipy.optimize import minimize
 
-from posevote.geometry import viewing_direction
 from posevote.inference.search import ProbeSet, viewpoint_features
 from posevote.inference.voting import TestMaps, gather_score
 from posevote.model.density import PoseModel
-from posevote.refinement.fitting import box_from_pose, probe_spacing, refine_mode
+from posevote.refinement.fitting import box_from_pose, neighbour_viewpoints, refine_mode
 from posevote.results import Hypothesis
 
 
@@ -106,9 +105,7 @@ def profile_refine(probes: ProbeSet, viewpoint: int, model: PoseModel, maps: Tes
     -------
     Hypothesis
     """
-    directions = viewing_direction(probes.azimuth, probes.elevation)
-    cos_radius = np.cos(radius_steps * probe_spacing(probes))
-    views = np.flatnonzero(directions @ directions[viewpoint] >= cos_radius)
+    views = neighbour_viewpoints(probes, viewpoint, radius_steps=radius_steps)
     polished = []
     for v in views:
         start = refine_mode(probes, int(v), fit=False)
