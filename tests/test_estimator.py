@@ -66,6 +66,12 @@ def test_unfitted_raises():
         ({"scale_steps": 0}, "scale_steps must be an integer"),
         ({"clutter_sigma": 0}, "clutter_sigma"),
         ({"coherence_floor": 1.5}, "coherence_floor"),
+        ({"density_cap": 0}, "density_cap must be positive"),
+        ({"contrast": 2}, "contrast must be in"),
+        ({"viewpoint_step_deg": -5}, "viewpoint_step_deg must be positive"),
+        ({"prune": "harsh"}, "unknown pruning preset"),
+        ({"prune_pose_std_deg": -1.0}, "pruning knobs must be positive"),
+        ({"instance_margin": 0.5}, "instance_margin must be >= 1"),
     ],
 )
 def test_bad_parameters(synthetic_training, kwargs, message):
@@ -125,3 +131,53 @@ def test_coil_instance_real_data(coil_dir):
     errors = [np.degrees(angular_error(est.estimate(img).best.azimuth, pose[0]))
               for img, pose in zip(test.load_images(), test.poses, strict=True)]
     assert np.median(errors) < 5.0
+
+
+def _marked(img):
+    """Instance 'b': the same object with an extra bar across its top."""
+    import cv2
+
+    out = img.copy()
+    cv2.line(out, (44, 40), (84, 40), 0.15, 2, cv2.LINE_AA)
+    return out
+
+
+def test_category_model_recognises_the_instance(synthetic_training, draw, tmp_path):
+    images, az, boxes = synthetic_training
+    from posevote.data import object_box
+
+    marked = [_marked(im) for im in images]
+    est = PoseEstimator(prune="moderate", instance_margin=1.02)
+    est.fit(images + marked, np.concatenate([az, az]),
+            boxes=np.vstack([boxes, [object_box(im) for im in marked]]),
+            instances=["a"] * 18 + ["b"] * 18)
+    assert est.model_.n_features < est.full_model_.n_features
+    truth = np.radians(70.0)
+    result = est.estimate(_marked(draw(truth)))
+    assert result.instance == "b" and result.instance_margin >= 1.02
+    assert np.degrees(angular_error(result.best.azimuth, truth)) < 10
+    est.save(tmp_path / "cat.npz")
+    loaded = PoseEstimator.load(tmp_path / "cat.npz")
+    assert loaded.full_model_.n_features == est.full_model_.n_features
+    assert loaded.model_.n_features == est.model_.n_features
+    assert loaded.estimate(_marked(draw(truth))).best == result.best
+    off = PoseEstimator(recognize_instance=False).fit(images, az, boxes=boxes,
+                                                      instances=["a"] * 9 + ["b"] * 9)
+    plain = off.estimate(draw(truth))
+    assert plain.instance == "" and np.isnan(plain.instance_margin)
+
+
+def test_object_kernel_and_density_options(synthetic_training, draw):
+    images, az, boxes = synthetic_training
+    est = PoseEstimator(object_kernel=True, contrast=1.0, density_cap=1.0,
+                        scale_range=(0.8, 1.25), scale_steps=4, viewpoint_step_deg=20)
+    est.fit(images, az, boxes=boxes)
+    from posevote.data import object_box
+
+    truth = np.radians(100.0)
+    img = draw(truth, scale=1.15, centre=(66.0, 60.0))
+    best = est.estimate(img).best
+    assert np.degrees(angular_error(best.azimuth, truth)) < 12
+    assert best.scale == pytest.approx(1.15, abs=0.1)
+    x, y, w, h = object_box(img)
+    assert best.position == pytest.approx((x + (w - 1) / 2, y + (h - 1) / 2), abs=5.0)

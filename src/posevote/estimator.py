@@ -24,15 +24,18 @@ from scipy.ndimage import binary_dilation
 
 from posevote.data.images import as_gray_float, read_image, read_mask
 from posevote.features.edges import EdgeFeatures, box_mask, detect_edges
+from posevote.geometry import viewing_direction
+from posevote.inference.recognition import explained_fraction, recognition_margin
 from posevote.inference.search import ProbeSet, probe_poses, viewpoint_grid
-from posevote.inference.voting import TestMaps, prepare_test
+from posevote.inference.voting import TestMaps, prepare_test, scaled_features
 from posevote.model.density import PoseModel, build_model
 from posevote.model.kernels import kappa_for_width
 from posevote.model.modelfile import load_model, save_model
+from posevote.model.pruning import PruningPreset, prune_model, resolve_preset
 from posevote.model.weights import feature_weights
 from posevote.refinement.fitting import find_modes, refine_mode
 from posevote.refinement.local import polish_pose, profile_refine
-from posevote.results import PoseEstimate
+from posevote.results import Hypothesis, PoseEstimate
 
 ImageLike = str | Path | NDArray
 
@@ -71,6 +74,10 @@ class PoseEstimator:
     viewpoint_subdivisions : int, default 1
         Probes per training-viewpoint gap (turntable models): 1 probes the
         training viewpoints only.
+    viewpoint_step_deg : float or None, default None
+        Probe turntable models on a regular azimuth grid of this step
+        instead of at the training viewpoints (for dense or pooled
+        training sets; see :func:`posevote.inference.search.viewpoint_grid`).
     inplane_range_deg : (float, float), default (0, 0)
         Range of in-plane angles searched, degrees.
     inplane_step_deg : float, default 10.0
@@ -100,6 +107,19 @@ class PoseEstimator:
     crowding_limit : float, default 1.0
         Test edge points up to this crowding (local edge density relative to
         a lone contour) keep their full weight; denser ones are discounted.
+    density_cap : float or None, default None
+        Saturate the test density phi at this value (a model feature is
+        explained or not, however dense the edges around it); None: the
+        paper's unbounded density.
+    contrast : float, default 0.0
+        Subtract this fraction of the orientation-averaged test density from
+        each orientation's density, so that texture matching every
+        orientation explains nothing (0: the paper's density).
+    object_kernel : bool, default False
+        Fix the position kernel width in object units rather than image
+        pixels: the test features are divided by each searched scale and
+        searched at scale 1 (a pyramid), so that small scales are not
+        favoured by a relatively wider tolerance (beyond the paper).
     k1_cutoff : float, default 0.1
         Training views whose pose kernel K1 is below this do not take part in
         a viewpoint's probe.
@@ -110,6 +130,22 @@ class PoseEstimator:
         count in the exact score.
     vote_candidates : int, default 2
         Vote peaks per probe whose exact score is computed.
+    prune : {None, "moderate", "aggressive"}, default None
+        Prune the pooled model by clustering (Sec. III-A) with a named
+        preset (:data:`posevote.model.pruning.PRESETS`); the search then
+        runs on the cluster centres, while instance recognition and
+        refinement use the full model.
+    prune_pose_std_deg, prune_appearance_std : float or None, default None
+        Override the preset's knobs (maximum within-cluster standard
+        deviation in viewpoint, degrees, and in appearance, kernel widths);
+        setting either without ``prune`` starts from ``"moderate"``.
+    recognize_instance : bool, default True
+        For models of several instances: score each instance at the
+        category estimate (Eqs. 5-6) and, when one wins by
+        ``instance_margin``, re-estimate near it with that instance's full
+        model (Sec. III-B).
+    instance_margin : float, default 1.1
+        The winner's score must be at least this multiple of the runner-up's.
     max_modes : int, default 3
         Modes reported per image.
     min_score : float, default 0.0
@@ -126,6 +162,7 @@ class PoseEstimator:
         orientation_kappa: float = 8.0,
         viewpoint_bandwidth_deg: float | None = None,
         viewpoint_subdivisions: int = 1,
+        viewpoint_step_deg: float | None = None,
         inplane_range_deg: tuple[float, float] = (0.0, 0.0),
         inplane_step_deg: float = 10.0,
         scale_range: tuple[float, float] = (0.9, 1.1),
@@ -138,10 +175,18 @@ class PoseEstimator:
         clutter_sigma: float | None = None,
         coherence_floor: float = 0.3,
         crowding_limit: float = 1.0,
+        density_cap: float | None = None,
+        contrast: float = 0.0,
+        object_kernel: bool = False,
         k1_cutoff: float = 0.1,
         vote_cell: float | None = None,
         max_voters: int | None = 200,
         vote_candidates: int = 2,
+        prune: str | None = None,
+        prune_pose_std_deg: float | None = None,
+        prune_appearance_std: float | None = None,
+        recognize_instance: bool = True,
+        instance_margin: float = 1.1,
         max_modes: int = 3,
         min_score: float = 0.0,
     ) -> None:
@@ -152,6 +197,7 @@ class PoseEstimator:
         self.orientation_kappa = orientation_kappa
         self.viewpoint_bandwidth_deg = viewpoint_bandwidth_deg
         self.viewpoint_subdivisions = viewpoint_subdivisions
+        self.viewpoint_step_deg = viewpoint_step_deg
         self.inplane_range_deg = inplane_range_deg
         self.inplane_step_deg = inplane_step_deg
         self.scale_range = scale_range
@@ -164,10 +210,18 @@ class PoseEstimator:
         self.clutter_sigma = clutter_sigma
         self.coherence_floor = coherence_floor
         self.crowding_limit = crowding_limit
+        self.density_cap = density_cap
+        self.contrast = contrast
+        self.object_kernel = object_kernel
         self.k1_cutoff = k1_cutoff
         self.vote_cell = vote_cell
         self.max_voters = max_voters
         self.vote_candidates = vote_candidates
+        self.prune = prune
+        self.prune_pose_std_deg = prune_pose_std_deg
+        self.prune_appearance_std = prune_appearance_std
+        self.recognize_instance = recognize_instance
+        self.instance_margin = instance_margin
         self.max_modes = max_modes
         self.min_score = min_score
 
@@ -214,8 +268,18 @@ class PoseEstimator:
             raise ValueError(f"coherence_floor must be in [0, 1), got {self.coherence_floor!r}")
         if not self.crowding_limit >= 1:
             raise ValueError(f"crowding_limit must be >= 1, got {self.crowding_limit!r}")
+        if self.density_cap is not None and not self.density_cap > 0:
+            raise ValueError(f"density_cap must be positive or None, got {self.density_cap!r}")
+        if not 0 <= self.contrast <= 1:
+            raise ValueError(f"contrast must be in [0, 1], got {self.contrast!r}")
         if not 0 <= self.k1_cutoff < 1:
             raise ValueError(f"k1_cutoff must be in [0, 1), got {self.k1_cutoff!r}")
+        self._pruning()
+        if not self.instance_margin >= 1:
+            raise ValueError(f"instance_margin must be >= 1, got {self.instance_margin!r}")
+        if self.viewpoint_step_deg is not None and not self.viewpoint_step_deg > 0:
+            raise ValueError(f"viewpoint_step_deg must be positive or None, "
+                             f"got {self.viewpoint_step_deg!r}")
         if self.viewpoint_bandwidth_deg is not None and not self.viewpoint_bandwidth_deg > 0:
             raise ValueError(f"viewpoint_bandwidth_deg must be positive or None, "
                              f"got {self.viewpoint_bandwidth_deg!r}")
@@ -351,8 +415,24 @@ class PoseEstimator:
         weights = feature_weights(model, position_sigma=self.position_sigma,
                                   orientation_kappa=self.orientation_kappa,
                                   viewpoint_kappa=self.viewpoint_kappa_)
-        self.model_ = model.with_weights(weights)
+        self.full_model_ = model.with_weights(weights)
+        preset = self._pruning()
+        self.model_ = self.full_model_ if preset is None else prune_model(
+            self.full_model_, preset, position_sigma=self.position_sigma,
+            orientation_kappa=self.orientation_kappa)
         return self
+
+    def _pruning(self) -> PruningPreset | None:
+        """The pruning knobs asked for, or None (raises ValueError on bad ones)."""
+        overrides = (self.prune_pose_std_deg, self.prune_appearance_std)
+        preset = resolve_preset(self.prune if self.prune is not None or overrides == (None, None)
+                                else "moderate")
+        if preset is None:
+            return None
+        return resolve_preset(PruningPreset(
+            pose_std_deg=float(overrides[0] if overrides[0] is not None else preset.pose_std_deg),
+            appearance_std=float(overrides[1] if overrides[1] is not None
+                                 else preset.appearance_std)))
 
     def _viewpoint_kappa(self, model: PoseModel) -> float:
         if self.viewpoint_bandwidth_deg is not None:
@@ -405,16 +485,39 @@ class PoseEstimator:
         feats = self._edges(img, mask=None, max_points=self.max_test_features)
         return feats, (int(img.shape[0]), int(img.shape[1]))
 
-    def _maps(self, feats: EdgeFeatures, shape: tuple[int, int], *, sigma: float) -> TestMaps:
+    def _maps(self, feats: EdgeFeatures, shape: tuple[int, int], *, sigma: float,
+              scale: float = 1.0) -> TestMaps:
         return prepare_test(feats, shape, position_sigma=sigma,
                             orientation_kappa=self.orientation_kappa,
-                            edge_spacing=self.edge_spacing, clutter_sigma=self.clutter_sigma,
+                            edge_spacing=self.edge_spacing / scale, clutter_sigma=self.clutter_sigma,
                             coherence_floor=self.coherence_floor,
-                            crowding_limit=self.crowding_limit)
+                            crowding_limit=self.crowding_limit,
+                            density_cap=self.density_cap, contrast=self.contrast)
 
-    def _probe(self, maps: TestMaps, progress: Callable[[int], None] | None) -> ProbeSet:
-        model = self._check_fitted()
-        az, el = viewpoint_grid(model, subdivisions=self.viewpoint_subdivisions)
+    def _search_maps(self, feats: EdgeFeatures, shape: tuple[int, int]
+                     ) -> TestMaps | list[TestMaps]:
+        """The test maps the search runs on: one set, or one per scale (``object_kernel``)."""
+        inplanes, scales = self.search_grid()
+        sigma = self.search_sigma(inplanes, scales)
+        if not self.object_kernel:
+            return self._maps(feats, shape, sigma=sigma)
+        return [self._maps(*scaled_features(feats, shape, float(s)), sigma=sigma, scale=float(s))
+                for s in scales]
+
+    def _probe(self, maps: TestMaps | list[TestMaps], progress: Callable[[int], None] | None,
+               *, model: PoseModel | None = None, near: Hypothesis | None = None) -> ProbeSet:
+        """Probe p(w) on the grid; with ``near``, only viewpoints within 3 steps of it."""
+        model = self._check_fitted() if model is None else model
+        step = None if self.viewpoint_step_deg is None else np.radians(self.viewpoint_step_deg)
+        az, el = viewpoint_grid(model, subdivisions=self.viewpoint_subdivisions, step=step)
+        if near is not None and len(az) > 3:
+            dirs = viewing_direction(az, el)
+            cosines = dirs @ viewing_direction(near.azimuth, near.elevation)
+            gap = float(np.median(np.diff(np.sort(az)))) if np.ptp(el) < 1e-9 else np.radians(20)
+            keep = cosines >= np.cos(3.0 * gap)
+            if keep.sum() < 3:
+                keep = np.isin(np.arange(len(az)), np.argsort(-cosines)[:3])
+            az, el = az[keep], el[keep]
         inplanes, scales = self.search_grid()
         return probe_poses(model, maps, azimuths=az, elevations=el, inplanes=inplanes,
                            scales=scales, viewpoint_kappa=self.viewpoint_kappa_,
@@ -442,8 +545,7 @@ class PoseEstimator:
         self._check_fitted()
         self._validate_params()
         feats, shape = self._features(image)
-        maps = self._maps(feats, shape, sigma=self.search_sigma(*self.search_grid()))
-        return self._probe(maps, progress), feats
+        return self._probe(self._search_maps(feats, shape), progress), feats
 
     def estimate(self, image: ImageLike) -> PoseEstimate:
         """Find the object and estimate its continuous pose (Sec. II-B).
@@ -463,32 +565,99 @@ class PoseEstimator:
         self._check_fitted()
         self._validate_params()
         feats, shape = self._features(image)
-        probes = self._probe(self._maps(feats, shape, sigma=self.search_sigma(*self.search_grid())),
-                             None)
+        search_maps = self._search_maps(feats, shape)
+        probes = self._probe(search_maps, None)
         modes = find_modes(probes, max_modes=self.max_modes)
         hyps = [refine_mode(probes, v, fit=self.fitting) for v in modes]
-        if self.local_refinement and hyps:
+        fine = self._maps(feats, shape, sigma=self.position_sigma) \
+            if hyps and (self.local_refinement or self._recognizing()) else None
+        if self.local_refinement and hyps and fine is not None:
             # Only the best mode is polished: the others are reported as
             # alternatives, and their fitted pose is enough for that.
-            fine = self._maps(feats, shape, sigma=self.position_sigma)
-            if self.fitting:
-                hyps[0] = profile_refine(probes, modes[0], self.model_, fine,
-                                         viewpoint_kappa=self.viewpoint_kappa_,
-                                         use_weights=self.weights, k1_cutoff=self.k1_cutoff)
-            else:
-                hyps[0] = polish_pose(hyps[0], self.model_, fine,
-                                      viewpoint_kappa=self.viewpoint_kappa_,
-                                      use_weights=self.weights, k1_cutoff=self.k1_cutoff)
+            hyps[0] = self._local(probes, modes[0], hyps[0], self.model_, fine)
+        instance, margin = "", float("nan")
+        if self._recognizing() and hyps and fine is not None:
+            best, margin = recognition_margin(self.instance_scores(hyps[0], feats, fine))
+            if margin >= self.instance_margin:
+                instance = self.full_model_.instance_names[best]
+                hyps[0] = self._instance_refine(best, hyps[0], search_maps, fine)
         kept = tuple(h for h in hyps if h.score > self.min_score)
         return PoseEstimate(found=bool(kept), best=kept[0] if kept else None, modes=kept,
-                            n_test_features=len(feats), seconds=time.perf_counter() - start)
+                            n_test_features=len(feats), seconds=time.perf_counter() - start,
+                            instance=instance if kept else "", instance_margin=margin)
+
+    def _recognizing(self) -> bool:
+        return bool(self.recognize_instance) and len(self._check_fitted().instance_names) > 1
+
+    def _local(self, probes: ProbeSet, viewpoint: int, hyp: Hypothesis, model: PoseModel,
+               fine: TestMaps) -> Hypothesis:
+        """The local refinement of one mode (``local_refinement``)."""
+        kw: dict[str, Any] = {"viewpoint_kappa": self.viewpoint_kappa_,
+                              "use_weights": self.weights, "k1_cutoff": self.k1_cutoff}
+        if self.fitting:
+            return profile_refine(probes, viewpoint, model, fine, **kw)
+        return polish_pose(hyp, model, fine, **kw)
+
+    def instance_scores(self, hypothesis: Hypothesis, features: EdgeFeatures,
+                        maps: TestMaps) -> NDArray[np.float64]:
+        """Score of each trained instance at a pose (Eqs. 5-6).
+
+        Each instance's own (full, unpruned) model is first aligned to the
+        image from ``w*`` (in-plane angle, scale and translation polished
+        on the exact p(w), since instances differ in shape), then scored by
+        the fraction of the test features in its box that it explains
+        (:func:`posevote.inference.recognition.explained_fraction`).
+
+        Parameters
+        ----------
+        hypothesis : Hypothesis
+            The category estimate ``w*``.
+        features : EdgeFeatures
+            The test image's features.
+        maps : TestMaps
+            The test image tabulated with the narrow kernel.
+
+        Returns
+        -------
+        ndarray, shape (n_instances,)
+        """
+        full = self.full_model_
+        kw: dict[str, Any] = {"viewpoint_kappa": self.viewpoint_kappa_,
+                              "use_weights": self.weights, "k1_cutoff": self.k1_cutoff}
+        subs = [full.instance_model(i) for i in range(len(full.instance_names))]
+        aligned = [polish_pose(hypothesis, sub, maps, **kw) for sub in subs]
+        # All instances are judged on the same test features: those in the
+        # union of their boxes.
+        corners = np.array([[h.box[0], h.box[1], h.box[0] + h.box[2], h.box[1] + h.box[3]]
+                            for h in aligned])
+        lo, hi = corners[:, :2].min(axis=0), corners[:, 2:].max(axis=0)
+        box = (float(lo[0]), float(lo[1]), float(hi[0] - lo[0]), float(hi[1] - lo[1]))
+        return np.array([
+            explained_fraction(features, sub, h, box=box, position_sigma=self.position_sigma,
+                               orientation_kappa=self.orientation_kappa, **kw)
+            for sub, h in zip(subs, aligned, strict=True)])
+
+    def _instance_refine(self, instance: int, hyp: Hypothesis,
+                         search_maps: TestMaps | list[TestMaps], fine: TestMaps) -> Hypothesis:
+        """Re-estimate near ``hyp`` with one instance's full model (Sec. III-B)."""
+        model = self.full_model_.instance_model(instance)
+        probes = self._probe(search_maps, None, model=model, near=hyp)
+        if not probes.score.any():
+            return hyp
+        v = int(np.argmax(probes.score.max(axis=(1, 2))))
+        refined = refine_mode(probes, v, fit=self.fitting)
+        if self.local_refinement:
+            refined = self._local(probes, v, refined, model, fine)
+        return refined
 
     # -- persistence -----------------------------------------------------------------
     def save(self, path: str | Path) -> None:
         """Write the fitted model to a file (atomically); see :mod:`posevote.model.modelfile`."""
         model = self._check_fitted()
+        full = getattr(self, "full_model_", model)
         save_model(path, model, self.get_params(),
-                   extra={"viewpoint_kappa": self.viewpoint_kappa_})
+                   extra={"viewpoint_kappa": self.viewpoint_kappa_},
+                   full_model=None if full is model else full)
 
     @classmethod
     def load(cls, path: str | Path) -> PoseEstimator:
@@ -499,12 +668,13 @@ class PoseEstimator:
         FileNotFoundError, ValueError
             Missing, foreign, corrupt or too-new files (message names the file).
         """
-        model, params, extra = load_model(path)
+        model, params, extra, full = load_model(path)
         est = cls()
         try:
             est.set_params(**params)
         except ValueError as exc:
             raise ValueError(f"{path}: {exc}") from None
         est.model_ = model
+        est.full_model_ = model if full is None else full
         est.viewpoint_kappa_ = float(extra.get("viewpoint_kappa", est._viewpoint_kappa(model)))
         return est

@@ -87,7 +87,11 @@ class PoseEstimate:
     seconds : float
         Wall time of the estimate.
     instance : str
-        Recognised instance ("" when not applicable).
+        Recognised instance ("" when not applicable, or when no instance won
+        clearly enough).
+    instance_margin : float
+        Score of the best instance over that of the runner-up at the
+        category estimate (NaN when instances were not scored).
     """
 
     found: bool
@@ -96,6 +100,7 @@ class PoseEstimate:
     n_test_features: int = 0
     seconds: float = 0.0
     instance: str = ""
+    instance_margin: float = float("nan")
 
     def to_dict(self) -> dict[str, Any]:
         """Plain dict for files and reports (degrees, pixels)."""
@@ -106,4 +111,5 @@ class PoseEstimate:
             "n_test_features": self.n_test_features,
             "seconds": self.seconds,
             "instance": self.instance,
+            "instance_margin": None if math.isnan(self.instance_margin) else self.instance_margin,
         }

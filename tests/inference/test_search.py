@@ -17,3 +17,8 @@ def test_probes_peak_near_the_truth(fitted_estimator, draw):
     profile = probes.score.max(axis=(1, 2))
     assert abs(np.degrees(probes.azimuth[np.argmax(profile)]) - 100) <= 20
     assert probes.translation.shape == probes.score.shape + (2,)
+
+
+def test_viewpoint_grid_regular_step(fitted_estimator):
+    az, el = viewpoint_grid(fitted_estimator.model_, step=np.radians(30))
+    assert np.allclose(np.degrees(az), np.arange(0, 360, 30)) and np.all(el == 0)

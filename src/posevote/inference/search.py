@@ -9,7 +9,7 @@ set of (pose, score) pairs approximating p(w) at discrete probes.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -60,7 +60,7 @@ class ProbeSet:
         return bool(np.ptp(self.elevation) < 1e-9) if len(self.elevation) else True
 
 
-def viewpoint_grid(model: PoseModel, *, subdivisions: int = 1
+def viewpoint_grid(model: PoseModel, *, subdivisions: int = 1, step: float | None = None
                    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Viewpoints to probe: the training viewpoints, optionally subdivided.
 
@@ -68,7 +68,11 @@ def viewpoint_grid(model: PoseModel, *, subdivisions: int = 1
     them and may be probed on a finer grid. For turntable models (one
     elevation) ``subdivisions - 1`` azimuths are inserted between each pair of
     neighbouring training azimuths; otherwise the training viewpoints are
-    used as they are.
+    used as they are. With ``step`` (radians), turntable models are probed
+    on a regular azimuth grid of that spacing instead, whatever the
+    training views: dense, irregular training sets (a car sequence with a
+    view every 3 degrees, several cars pooled) then cost a fixed number of
+    probes.
 
     Returns
     -------
@@ -79,6 +83,12 @@ def viewpoint_grid(model: PoseModel, *, subdivisions: int = 1
         raise ValueError(f"subdivisions must be >= 1, got {subdivisions}")
     pairs = np.unique(np.round(np.stack([model.view_azimuth, model.view_elevation], 1), 9), axis=0)
     az, el = pairs[:, 0], pairs[:, 1]
+    if step is not None and np.ptp(el) <= 1e-9:
+        if not step > 0:
+            raise ValueError(f"step must be positive, got {step}")
+        n = max(int(round(2 * np.pi / step)), 1)
+        regular = np.arange(n) * (2 * np.pi / n)
+        return regular, np.full_like(regular, el[0])
     if np.ptp(el) > 1e-9 or subdivisions == 1 or len(az) < 2:
         return np.asarray(az, dtype=np.float64), np.asarray(el, dtype=np.float64)
     az = np.sort(az)
@@ -130,7 +140,7 @@ def viewpoint_features(model: PoseModel, azimuth: float, elevation: float, *,
 
 def probe_poses(
     model: PoseModel,
-    maps: TestMaps,
+    maps: TestMaps | Sequence[TestMaps],
     *,
     azimuths: NDArray[np.float64],
     elevations: NDArray[np.float64],
@@ -150,8 +160,12 @@ def probe_poses(
     ----------
     model : PoseModel
         Training pairs.
-    maps : TestMaps
-        The prepared test image.
+    maps : TestMaps or sequence of TestMaps
+        The prepared test image: one set of maps for every scale (position
+        kernel fixed in image pixels, the paper's K2), or one per scale,
+        each prepared from the test features divided by that scale
+        (position kernel fixed in object units; see
+        :func:`posevote.inference.voting.scaled_features`).
     azimuths, elevations : ndarray, shape (V,)
         Viewpoints to probe, radians.
     inplanes : ndarray, shape (A,)
@@ -179,6 +193,11 @@ def probe_poses(
     ProbeSet
     """
     n_v = len(azimuths)
+    scales = np.asarray(scales, dtype=np.float64)
+    per_scale: list[TestMaps] = [] if isinstance(maps, TestMaps) else list(maps)
+    if per_scale and len(per_scale) != len(scales):
+        raise ValueError(f"need one TestMaps per scale: {len(per_scale)} for {len(scales)} "
+                         "scales")
     score = np.zeros((n_v, len(inplanes), len(scales)))
     translation = np.zeros((n_v, len(inplanes), len(scales), 2))
     box = np.zeros((n_v, 2))
@@ -187,10 +206,19 @@ def probe_poses(
                                    viewpoint_kappa=viewpoint_kappa, use_weights=use_weights,
                                    k1_cutoff=k1_cutoff)
         box[v] = feats.box
-        if feats.weight.sum() > 0:
+        if feats.weight.sum() <= 0:
+            pass
+        elif isinstance(maps, TestMaps):
             score[v], translation[v] = search_translations(
                 maps, feats.xy, feats.theta, feats.weight, inplanes=inplanes, scales=scales,
                 cell=cell, n_candidates=n_candidates, max_voters=max_voters)
+        else:
+            for k, (scale_maps, factor) in enumerate(zip(per_scale, scales, strict=True)):
+                sc, tr = search_translations(
+                    scale_maps, feats.xy, feats.theta, feats.weight, inplanes=inplanes,
+                    scales=np.ones(1), cell=cell, n_candidates=n_candidates,
+                    max_voters=max_voters)
+                score[v, :, k], translation[v, :, k] = sc[:, 0], tr[:, 0] * factor
         if progress is not None:
             progress(1)
     return ProbeSet(azimuth=np.asarray(azimuths, dtype=float),

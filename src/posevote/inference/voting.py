@@ -116,7 +116,9 @@ def edge_statistics(features: EdgeFeatures, shape: tuple[int, int], *, sigma: fl
 def prepare_test(features: EdgeFeatures, shape: tuple[int, int], *, position_sigma: float,
                  orientation_kappa: float, edge_spacing: float = 2.0,
                  clutter_sigma: float | None = None, coherence_floor: float = 0.3,
-                 crowding_limit: float = 1.0, vote_bins: int = 16, density_bins: int = 16,
+                 crowding_limit: float = 1.0, density_cap: float | None = None,
+                 contrast: float = 0.0,
+                 vote_bins: int = 16, density_bins: int = 16,
                  vote_cutoff: float = 0.2) -> TestMaps:
     """Sort the test features by orientation and tabulate phi (Eq. 2).
 
@@ -144,6 +146,16 @@ def prepare_test(features: EdgeFeatures, shape: tuple[int, int], *, position_sig
     crowding_limit : float, optional
         Crowding (relative to a lone contour) up to which a test feature keeps
         its full weight; above it the weight falls as ``limit / crowding``.
+    density_cap : float, optional
+        If given, phi is saturated at this value: a model feature is
+        explained by an image edge or not, however dense the edges around
+        it (beyond the paper; keeps textured clutter from outvoting
+        contours and biasing the scale towards small, dense fits).
+    contrast : float, optional
+        Subtract this fraction of the orientation-averaged density from
+        each orientation's density (clipped at 0), so that isotropic
+        texture, which matches every orientation equally, explains nothing,
+        while a contour keeps most of its density (beyond the paper).
     vote_bins : int, optional
         Orientation bins used to find compatible pairs when voting.
     density_bins : int, optional
@@ -183,6 +195,11 @@ def prepare_test(features: EdgeFeatures, shape: tuple[int, int], *, position_sig
                                                                    orientation_kappa))
         density[b] = gain * cv2.GaussianBlur(plane, (0, 0), position_sigma,
                                              borderType=cv2.BORDER_CONSTANT)
+    if contrast > 0:
+        density -= np.float32(contrast) * density.mean(axis=0, keepdims=True)
+        np.maximum(density, 0.0, out=density)
+    if density_cap is not None:
+        np.minimum(density, np.float32(density_cap), out=density)
     lut = orientation_kernel(np.linspace(0.0, np.pi / 2, _LUT_SIZE), orientation_kappa)
     cut = orientation_cutoff(orientation_kappa, vote_cutoff)
     radius = int(np.ceil(cut / (np.pi / vote_bins)))
@@ -190,6 +207,20 @@ def prepare_test(features: EdgeFeatures, shape: tuple[int, int], *, position_sig
                     weight=weight[order].copy(), bin_start=bin_start, density=density,
                     lut=np.where(lut >= vote_cutoff, lut, 0.0),
                     vote_radius=min(radius, vote_bins // 2), position_sigma=float(position_sigma))
+
+
+def scaled_features(features: EdgeFeatures, shape: tuple[int, int], scale: float
+                    ) -> tuple[EdgeFeatures, tuple[int, int]]:
+    """Test features and image shape divided by ``scale`` (one level of a pyramid).
+
+    Searching the model at scale 1 in these features is searching it at
+    ``scale`` in the image, with every kernel width multiplied by ``scale``:
+    the position kernel is then fixed in object units, so that small scales
+    do not enjoy a wider relative tolerance than large ones.
+    """
+    h, w = shape
+    out_shape = (max(1, int(np.ceil(h / scale))), max(1, int(np.ceil(w / scale))))
+    return EdgeFeatures(xy=features.xy / scale, theta=features.theta), out_shape
 
 
 # --- kernel 1: votes ----------------------------------------------------------

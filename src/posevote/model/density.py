@@ -77,6 +77,22 @@ class PoseModel:
     def _view_directions(self) -> NDArray[np.float64]:
         return viewing_direction(self.view_azimuth, self.view_elevation)
 
+    def instance_model(self, instance: int) -> PoseModel:
+        """The training pairs of one instance only (views re-indexed)."""
+        views = np.flatnonzero(self.view_instance == instance)
+        if len(views) == 0:
+            raise ValueError(f"instance {instance} has no training views")
+        local = np.full(self.n_views, -1, dtype=np.int64)
+        local[views] = np.arange(len(views))
+        keep = local[self.view] >= 0
+        fields = {k: getattr(self, k) for k in self.__dataclass_fields__}
+        fields.update(xy=self.xy[keep], theta=self.theta[keep], view=local[self.view[keep]],
+                      weight=self.weight[keep], view_azimuth=self.view_azimuth[views],
+                      view_elevation=self.view_elevation[views], view_box=self.view_box[views],
+                      view_instance=np.zeros(len(views), dtype=np.int64),
+                      instance_names=(self.instance_names[instance],))
+        return PoseModel(**fields)
+
     def with_weights(self, weight: NDArray[np.float64]) -> PoseModel:
         """A copy with other feature weights."""
         fields = {k: getattr(self, k) for k in self.__dataclass_fields__}

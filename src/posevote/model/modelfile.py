@@ -4,6 +4,10 @@ A model file is a NumPy ``.npz`` archive of plain numeric arrays plus one
 ``header`` entry: UTF-8 JSON with ``format`` (``"posevote-model"``),
 ``version`` (an integer), the estimator's hyper-parameters and the model's
 names. ``allow_pickle`` is never enabled, so loading a file cannot run code.
+
+Version 2 adds the optional ``full_*`` arrays: the unpruned model of a
+pruned category model (for instance recognition and refinement). Version 1
+files are still read.
 """
 
 from __future__ import annotations
@@ -19,14 +23,15 @@ from posevote._io import atomic_open
 from posevote.model.density import PoseModel
 
 FORMAT_NAME = "posevote-model"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 
-_ARRAYS = ("xy", "theta", "view", "weight", "view_azimuth", "view_elevation", "view_box",
-           "view_instance")
+_FEATURE_ARRAYS = ("xy", "theta", "view", "weight")
+_ARRAYS = (*_FEATURE_ARRAYS, "view_azimuth", "view_elevation", "view_box", "view_instance")
 
 
 def save_model(path: str | Path, model: PoseModel, params: dict[str, Any],
-               extra: dict[str, Any] | None = None) -> None:
+               extra: dict[str, Any] | None = None, full_model: PoseModel | None = None
+               ) -> None:
     """Write a model file atomically.
 
     Parameters
@@ -39,6 +44,8 @@ def save_model(path: str | Path, model: PoseModel, params: dict[str, Any],
         Estimator hyper-parameters (JSON-serialisable).
     extra : dict, optional
         Further JSON-serialisable facts to record (training statistics).
+    full_model : PoseModel, optional
+        The unpruned model, when ``model`` is pruned (same views).
     """
     header = {
         "format": FORMAT_NAME,
@@ -50,12 +57,15 @@ def save_model(path: str | Path, model: PoseModel, params: dict[str, Any],
         "extra": extra or {},
     }
     arrays = {name: getattr(model, name) for name in _ARRAYS}
+    if full_model is not None:
+        arrays.update({f"full_{name}": getattr(full_model, name) for name in _FEATURE_ARRAYS})
     arrays["header"] = np.frombuffer(json.dumps(header).encode("utf-8"), dtype=np.uint8)
     with atomic_open(path, "wb") as fh:
         np.savez_compressed(fh, **arrays)
 
 
-def load_model(path: str | Path) -> tuple[PoseModel, dict[str, Any], dict[str, Any]]:
+def load_model(path: str | Path
+               ) -> tuple[PoseModel, dict[str, Any], dict[str, Any], PoseModel | None]:
     """Read a model file.
 
     Parameters
@@ -70,6 +80,8 @@ def load_model(path: str | Path) -> tuple[PoseModel, dict[str, Any], dict[str, A
         The estimator hyper-parameters it was trained with.
     extra : dict
         Recorded training facts.
+    full_model : PoseModel or None
+        The unpruned model, if the file has one.
 
     Raises
     ------
@@ -97,6 +109,8 @@ def load_model(path: str | Path) -> tuple[PoseModel, dict[str, Any], dict[str, A
                     f"{path}: model format version {version} is newer than this posevote reads "
                     f"(up to {FORMAT_VERSION}); upgrade posevote or retrain the model")
             arrays = {name: data[name] for name in _ARRAYS}
+            full = ({name: data[f"full_{name}"] for name in _FEATURE_ARRAYS}
+                    if "full_xy" in data.files else None)
     except ValueError as exc:
         if str(exc).startswith(str(path)):
             raise
@@ -105,6 +119,15 @@ def load_model(path: str | Path) -> tuple[PoseModel, dict[str, Any], dict[str, A
             UnicodeDecodeError) as exc:
         raise ValueError(f"{path}: not a posevote model file, or truncated/corrupt "
                          f"({type(exc).__name__}: {exc})") from None
+    model = _build(path, arrays, header)
+    full_model = None
+    if full is not None:
+        full_model = _build(path, {**arrays, **full}, header)
+    return model, dict(header.get("params", {})), dict(header.get("extra", {})), full_model
+
+
+def _build(path: Path, arrays: dict[str, np.ndarray], header: dict[str, Any]) -> PoseModel:
+    """A PoseModel from the file's arrays, after checking their shapes."""
     m = len(arrays["theta"])
     k = len(arrays["view_azimuth"])
     shapes_ok = (arrays["xy"].shape == (m, 2) and arrays["view"].shape == (m,)
@@ -113,7 +136,7 @@ def load_model(path: str | Path) -> tuple[PoseModel, dict[str, Any], dict[str, A
                  and (m == 0 or (arrays["view"].min() >= 0 and arrays["view"].max() < k)))
     if not shapes_ok:
         raise ValueError(f"{path}: corrupt model file (inconsistent array shapes)")
-    model = PoseModel(
+    return PoseModel(
         xy=arrays["xy"].astype(np.float64), theta=arrays["theta"].astype(np.float64),
         view=arrays["view"].astype(np.int64), weight=arrays["weight"].astype(np.float64),
         view_azimuth=arrays["view_azimuth"].astype(np.float64),
@@ -124,4 +147,3 @@ def load_model(path: str | Path) -> tuple[PoseModel, dict[str, Any], dict[str, A
         reference_size=float(header.get("reference_size", 1.0)),
         category=str(header.get("category", "")),
     )
-    return model, dict(header.get("params", {})), dict(header.get("extra", {}))

@@ -10,6 +10,11 @@ Our reading of Eq. 4 (METHOD.md)::
 that also shows up, at the same object-centred place and orientation, in
 views of very different pose gets a low weight; one that pins the pose down
 gets a weight near 1.
+
+The sum runs over the views of the feature's own instance: in a category
+model, a feature is ambiguous when its own object shows it in very
+different poses (the cost then grows linearly with the number of
+instances, not quadratically).
 """
 
 from __future__ import annotations
@@ -37,7 +42,7 @@ def feature_weights(model: PoseModel, *, position_sigma: float, orientation_kapp
     viewpoint_kappa : float
         Concentration of the pose kernel K1 on viewing directions.
     max_pairs : int, optional
-        Guard on the number of nearby feature pairs examined.
+        Guard on the number of nearby feature pairs examined per instance.
 
     Returns
     -------
@@ -50,29 +55,47 @@ def feature_weights(model: PoseModel, *, position_sigma: float, orientation_kapp
         If the model has so many overlapping features that more than
         ``max_pairs`` pairs would be examined.
     """
-    m, k_views = model.n_features, model.n_views
+    weights = np.zeros(model.n_features)
+    directions = model.view_directions()
+    for inst in np.unique(model.view_instance):
+        views = np.flatnonzero(model.view_instance == inst)
+        local = np.full(model.n_views, -1, dtype=np.int64)
+        local[views] = np.arange(len(views))
+        idx = np.flatnonzero(local[model.view] >= 0)
+        weights[idx] = _instance_weights(model.xy[idx], model.theta[idx], local[model.view[idx]],
+                                         directions[views], position_sigma=position_sigma,
+                                         orientation_kappa=orientation_kappa,
+                                         viewpoint_kappa=viewpoint_kappa, max_pairs=max_pairs)
+    return weights
+
+
+def _instance_weights(xy: NDArray[np.float64], theta: NDArray[np.float64],
+                      view: NDArray[np.int64], directions: NDArray[np.float64], *,
+                      position_sigma: float, orientation_kappa: float, viewpoint_kappa: float,
+                      max_pairs: int) -> NDArray[np.float64]:
+    """Eq. 4 over the views of one instance (``view`` indexes ``directions``)."""
+    m, k_views = len(theta), len(directions)
     if m == 0:
         return np.zeros(0)
-    tree = cKDTree(model.xy)
+    tree = cKDTree(xy)
     radius = 3.0 * position_sigma
     pairs = tree.query_pairs(radius, output_type="ndarray")
     if len(pairs) > max_pairs:
         raise ValueError(f"{len(pairs)} feature pairs to weigh (max_pairs={max_pairs}); "
-                         "prune the model or lower the feature budget")
+                         "lower the feature budget (max_train_features)")
     # Both directions of every pair, plus each feature with itself.
     i = np.concatenate([pairs[:, 0], pairs[:, 1], np.arange(m)])
     j = np.concatenate([pairs[:, 1], pairs[:, 0], np.arange(m)])
-    d2 = np.sum((model.xy[i] - model.xy[j]) ** 2, axis=1)
+    d2 = np.sum((xy[i] - xy[j]) ** 2, axis=1)
     response = position_kernel(d2, position_sigma) * orientation_kernel(
-        model.theta[i] - model.theta[j], orientation_kappa)
+        theta[i] - theta[j], orientation_kappa)
     # psi~_k(x_i): strongest response among the features of view k.
-    key = i * k_views + model.view[j]
+    key = i * k_views + view[j]
     order = np.lexsort((-response, key))
     key, response, i = key[order], response[order], i[order]
     first = np.ones(len(key), dtype=bool)
     first[1:] = key[1:] != key[:-1]
     i, view_k, psi = i[first], key[first] % k_views, response[first]
-    directions = model.view_directions()
-    k1 = viewpoint_kernel(directions[model.view[i]], directions[view_k], viewpoint_kappa)
+    k1 = viewpoint_kernel(directions[view[i]], directions[view_k], viewpoint_kappa)
     ambiguity = np.bincount(i, weights=psi * (1.0 - k1), minlength=m) / k_views
     return np.clip(1.0 - ambiguity, 0.0, 1.0)
