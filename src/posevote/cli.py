@@ -1,4 +1,4 @@
-"""Command-line interface: ``posevote train | estimate | weights | demo``.
+"""Command-line interface: ``posevote train | estimate | weights | evaluate | demo``.
 
 Exit codes
 ----------
@@ -200,6 +200,56 @@ def weights(model: Path, output: Path, views: int) -> None:
     except (FileNotFoundError, ValueError) as exc:
         raise InputError(str(exc)) from None
     click.echo(f"wrote {output}")
+
+
+@cli.command()
+@click.argument("protocol", type=click.Choice(["coil-category", "epfl-single", "epfl-10-10",
+                                               "epfl-cv"]))
+@click.option("--data", required=True, type=click.Path(path_type=Path),
+              help="Data folder: ../shared/data, or the dataset's own folder.")
+@click.option("--out", "out", type=click.Path(path_type=Path), default=None,
+              help="Results folder (default: results/PROTOCOL). Rerun with the same folder "
+                   "to resume.")
+@click.option("--jobs", type=click.IntRange(1, 64), default=1, show_default=True,
+              help="Worker processes for the test images.")
+@click.option("--every", type=click.IntRange(1, 1000), default=1, show_default=True,
+              help="Test every N-th image only (a quick look; the report says so).")
+@click.option("--rows", default=None,
+              help="Comma-separated row names to run (default: all rows of the protocol).")
+def evaluate(protocol: str, data: Path, out: Path | None, jobs: int, every: int,
+             rows: str | None) -> None:
+    """Run an evaluation PROTOCOL of the paper on real data and write its report."""
+    from posevote.evaluation.protocols import load_protocol
+    from posevote.evaluation.report import markdown_table
+    from posevote.evaluation.runner import run_protocol
+
+    out = out if out is not None else Path("results") / protocol
+    try:
+        proto = load_protocol(protocol, data)
+        row_list = None if rows is None else [r.strip() for r in rows.split(",") if r.strip()]
+        bar = None
+
+        def progress(done: int, total: int) -> None:
+            nonlocal bar
+            if bar is None:
+                bar = _progress(total, protocol)
+                bar.update(done)
+            else:
+                bar.update(done - bar.n)
+
+        try:
+            summary = run_protocol(proto, out, jobs=jobs, every=every, rows=row_list,
+                                   progress=progress, log=lambda m: click.echo(m, err=True))
+        finally:
+            if bar is not None:
+                bar.close()
+    except (FileNotFoundError, ValueError) as exc:
+        raise InputError(str(exc)) from None
+    click.echo(markdown_table(summary))
+    if proto.published:
+        click.echo("Published numbers to compare with:\n")
+        click.echo(proto.published)
+    click.echo(f"report, summary.json, results.csv and plots in {out}/")
 
 
 @cli.command()

@@ -87,8 +87,8 @@ def viewpoint_grid(model: PoseModel, *, subdivisions: int = 1, step: float | Non
         if not step > 0:
             raise ValueError(f"step must be positive, got {step}")
         n = max(int(round(2 * np.pi / step)), 1)
-        regular = np.arange(n) * (2 * np.pi / n)
-        return regular, np.full_like(regular, el[0])
+        regular = np.arange(n, dtype=np.float64) * (2 * np.pi / n)
+        return regular, np.full(n, float(el[0]))
     if np.ptp(el) > 1e-9 or subdivisions == 1 or len(az) < 2:
         return np.asarray(az, dtype=np.float64), np.asarray(el, dtype=np.float64)
     az = np.sort(az)

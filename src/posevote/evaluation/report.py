@@ -1,0 +1,191 @@
+"""Reports of an evaluation run: tables (Markdown, JSON, CSV) and plots.
+
+Plots, for the protocol's main row:
+
+- ``error_histogram.png``: distribution of the azimuth error (Fig. 8);
+- ``per_instance.png``: mean and median error of each test instance (Fig. 7
+  bottom);
+- ``scatter.png``: estimated against true azimuth (front/back confusions
+  are the off-diagonal bands 180 degrees away);
+- ``worst_cases.png``: the worst estimates drawn on their images, with the
+  true box in green and the orientation rose (Fig. 9).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from posevote._io import atomic_write_text, atomic_write_with
+from posevote.evaluation.protocols import Protocol
+
+
+def _fmt(value: Any, digits: int = 1) -> str:
+    if value is None:
+        return "–"
+    if isinstance(value, float):
+        return f"{value:.{digits}f}"
+    return str(value)
+
+
+def markdown_table(summary: dict[str, Any]) -> str:
+    """The rows of a summary as a Markdown table, overall then per group."""
+    head = ("| row | group | n | median ° | mean ° | p90 ° | % < 22.5° | % < 45° | detected % "
+            "| recognised % | features kept % | s / image |\n"
+            "|---|---|---|---|---|---|---|---|---|---|---|---|\n")
+    lines = []
+    for row in summary["rows"]:
+        if not row.get("available", True):
+            lines.append(f"| {row['name']} | – | not available: {row['note']} |"
+                         + " |" * 9)
+            continue
+        if "overall" not in row:
+            lines.append(f"| {row['name']} | – | not run |" + " |" * 9)
+            continue
+        parts = [("all", row["overall"])] + list(row["groups"].items())
+        for group, m in parts:
+            lines.append(
+                f"| {row['name']} | {group} | {m['n']} | {_fmt(m['median'], 2)} "
+                f"| {_fmt(m['mean'], 2)} | {_fmt(m['p90'])} | {_fmt(m['under_22_5'])} "
+                f"| {_fmt(m['under_45'])} | {_fmt(m['detection_rate'])} "
+                f"| {_fmt(m['recognition_rate'])} | {_fmt(row.get('features_kept_percent'))} "
+                f"| {_fmt(m['median_seconds'], 3)} |")
+    return head + "\n".join(lines) + "\n"
+
+
+def write_csv(records: Sequence[dict[str, Any]], path: Path) -> None:
+    """All records as CSV (atomically)."""
+    from posevote.evaluation.runner import RECORD_FIELDS
+
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, fieldnames=list(RECORD_FIELDS), extrasaction="ignore")
+    writer.writeheader()
+    for rec in records:
+        writer.writerow({k: ("" if rec.get(k) is None else rec.get(k)) for k in RECORD_FIELDS})
+    atomic_write_text(path, buf.getvalue())
+
+
+def write_report(protocol: Protocol, summary: dict[str, Any],
+                 records: Sequence[dict[str, Any]], out: Path) -> None:
+    """Write ``summary.json``, ``results.csv``, ``report.md`` and the plots into ``out``."""
+    atomic_write_text(out / "summary.json", json.dumps(summary, indent=2) + "\n")
+    write_csv(records, out / "results.csv")
+    main = protocol.main_row or next((r.name for r in protocol.rows if r.params is not None), "")
+    mine = [r for r in records if r["row"] == main]
+    plots = []
+    if mine:
+        plot_error_histogram(mine, out / "error_histogram.png", title=f"{protocol.name}: {main}")
+        plot_per_instance(mine, out / "per_instance.png", title=f"{protocol.name}: {main}")
+        plot_scatter(mine, out / "scatter.png", title=f"{protocol.name}: {main}")
+        plot_worst_cases(mine, out / "worst_cases.png")
+        plots = ["error_histogram.png", "per_instance.png", "scatter.png", "worst_cases.png"]
+    sub = "" if summary.get("every", 1) == 1 else (
+        f"\n**Subsample**: every {summary['every']}th test image of each split.\n")
+    text = (f"# {protocol.name}\n\n{protocol.description}\n{sub}\n{markdown_table(summary)}\n"
+            + (f"Published numbers to compare with:\n\n{protocol.published}\n"
+               if protocol.published else "")
+            + (f"Plots ({main}):\n\n" + "\n".join(f"![{p}]({p})" for p in plots) + "\n"
+               if plots else ""))
+    atomic_write_text(out / "report.md", text)
+
+
+def _figure() -> Any:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _save(fig: Any, path: Path) -> None:
+    atomic_write_with(path, lambda tmp: fig.savefig(tmp, dpi=100, bbox_inches="tight"))
+    _figure().close(fig)
+
+
+def plot_error_histogram(records: Sequence[dict[str, Any]], path: Path, *, title: str = "") -> None:
+    """Histogram of the azimuth errors, 5-degree bins (Fig. 8)."""
+    plt = _figure()
+    err = np.array([r["error_deg"] for r in records], dtype=float)
+    fig, ax = plt.subplots(figsize=(6, 3.2))
+    ax.hist(err, bins=np.arange(0, 185, 5), color="0.35")
+    ax.set_xlabel("azimuth error (degrees)")
+    ax.set_ylabel("test images")
+    ax.set_title(f"{title}  (median {np.median(err):.1f}°, mean {err.mean():.1f}°)", fontsize=9)
+    _save(fig, path)
+
+
+def plot_per_instance(records: Sequence[dict[str, Any]], path: Path, *, title: str = "") -> None:
+    """Mean and median error per test instance (Fig. 7 bottom)."""
+    plt = _figure()
+    names = sorted({r["instance"] for r in records})
+    err = [np.array([r["error_deg"] for r in records if r["instance"] == n]) for n in names]
+    x = np.arange(len(names))
+    fig, ax = plt.subplots(figsize=(max(4, 0.6 * len(names) + 2), 3.2))
+    ax.bar(x - 0.2, [e.mean() for e in err], 0.4, label="mean", color="0.6")
+    ax.bar(x + 0.2, [np.median(e) for e in err], 0.4, label="median", color="0.2")
+    ax.set_xticks(x, names, rotation=45, ha="right", fontsize=8)
+    ax.set_ylabel("azimuth error (degrees)")
+    ax.legend(fontsize=8)
+    ax.set_title(title, fontsize=9)
+    _save(fig, path)
+
+
+def plot_scatter(records: Sequence[dict[str, Any]], path: Path, *, title: str = "") -> None:
+    """Estimated against true azimuth."""
+    plt = _figure()
+    found = [r for r in records if r.get("estimate_deg") is not None]
+    fig, ax = plt.subplots(figsize=(4, 4))
+    ax.scatter([r["truth_deg"] for r in found], [r["estimate_deg"] for r in found], s=4,
+               color="0.2")
+    ax.plot([0, 360], [0, 360], color="tab:green", lw=0.8)
+    ax.set_xlim(0, 360)
+    ax.set_ylim(0, 360)
+    ax.set_xlabel("true azimuth (degrees)")
+    ax.set_ylabel("estimated azimuth (degrees)")
+    ax.set_title(title, fontsize=9)
+    _save(fig, path)
+
+
+def plot_worst_cases(records: Sequence[dict[str, Any]], path: Path, *, n: int = 12) -> None:
+    """The ``n`` worst estimates drawn on their images (Fig. 9 style)."""
+    from posevote.data.images import read_image
+    from posevote.evaluation.plots import draw_overlay
+    from posevote.results import Hypothesis, PoseEstimate
+
+    plt = _figure()
+    worst = sorted(records, key=lambda r: -r["error_deg"])[:n]
+    cols = 4
+    rows = max(1, int(np.ceil(len(worst) / cols)))
+    fig, axes = plt.subplots(rows, cols, figsize=(3.2 * cols, 2.6 * rows), squeeze=False)
+    for ax in axes.ravel():
+        ax.axis("off")
+    for ax, rec in zip(axes.ravel(), worst, strict=False):
+        try:
+            img = read_image(rec["image"])
+        except (OSError, ValueError):
+            continue
+        if rec.get("estimate_deg") is None:
+            est = PoseEstimate(found=False, best=None)
+        else:
+            hyp = Hypothesis(azimuth=np.radians(rec["estimate_deg"]), elevation=0.0,
+                             inplane=np.radians(rec.get("inplane_deg") or 0.0),
+                             scale=rec.get("scale") or 1.0, position=(rec["u"], rec["v"]),
+                             box=(rec["box_x"], rec["box_y"], rec["box_w"], rec["box_h"]),
+                             score=rec["score"], refined=True)
+            est = PoseEstimate(found=True, best=hyp, modes=(hyp,))
+        truth = [rec.get(k) for k in ("truth_box_x", "truth_box_y", "truth_box_w", "truth_box_h")]
+        canvas = draw_overlay(img, est, truth_box=truth if None not in truth else None,
+                              label=f"true {rec['truth_deg']:.0f} est "
+                                    f"{_fmt(rec.get('estimate_deg'), 0)}")
+        ax.imshow(canvas[:, :, ::-1])
+        ax.set_title(f"{Path(rec['image']).name}: error {rec['error_deg']:.0f}°", fontsize=8)
+    fig.suptitle("Worst cases (red: estimate, green: true box; rose: estimated orientation)",
+                 fontsize=9)
+    _save(fig, path)

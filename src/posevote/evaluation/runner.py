@@ -1,0 +1,316 @@
+"""Run an evaluation protocol: train, estimate every test image, score, report.
+
+Layout of a results folder (``--out``)::
+
+    models/<row>__<split>.npz     trained models (reused when their settings match)
+    records/<row>__<split>.jsonl  one JSON line per finished test image
+    results.csv                   every record of every row (written at the end)
+    summary.json                  the metrics of every row and group
+    report.md                     the table beside the published numbers
+    *.png                         plots (see :mod:`posevote.evaluation.report`)
+
+Resuming: records are appended one line at a time, flushed and synced, so
+an interrupted run keeps what it finished; a new run with the same
+``--out`` skips the images already recorded (a last line cut short by the
+interruption is ignored and redone). ``results.csv``, ``summary.json`` and
+the plots are written atomically, from the records, once every image is
+done.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import re
+import time
+from collections.abc import Callable, Sequence
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from posevote.estimator import PoseEstimator
+from posevote.evaluation.metrics import box_iou, summarize_errors
+from posevote.evaluation.protocols import Protocol, Row, Split
+from posevote.geometry import angular_error
+
+#: Fields of a record, in CSV column order.
+RECORD_FIELDS = (
+    "row", "split", "image", "instance", "group", "truth_deg", "estimate_deg", "error_deg",
+    "found", "score", "second_deg", "second_score", "inplane_deg", "scale", "u", "v",
+    "box_x", "box_y", "box_w", "box_h", "truth_box_x", "truth_box_y", "truth_box_w",
+    "truth_box_h", "iou", "detected", "recognised", "instance_margin", "seconds",
+)
+
+
+def slug(text: str) -> str:
+    """A file-name-safe form of a row or split name."""
+    return re.sub(r"[^A-Za-z0-9]+", "-", text).strip("-").lower()
+
+
+def pose_error_deg(estimate: float, truth: float, *, half_turn: bool) -> float:
+    """Absolute azimuth error in degrees; on the half circle for symmetric objects."""
+    err = math.degrees(float(angular_error(estimate, truth)))
+    return min(err, 180.0 - err) if half_turn else err
+
+
+def read_records(path: Path) -> list[dict[str, Any]]:
+    """The complete records of a JSON-lines file (a cut-short last line is dropped)."""
+    if not path.is_file():
+        return []
+    out = []
+    with path.open("r", encoding="utf-8") as fh:
+        for line in fh:
+            try:
+                rec = json.loads(line)
+            except json.JSONDecodeError:
+                continue
+            if isinstance(rec, dict) and "image" in rec:
+                out.append(rec)
+    return out
+
+
+# --- the worker side ------------------------------------------------------------------
+
+_ESTIMATORS: dict[str, PoseEstimator] = {}
+
+
+def _init_worker() -> None:
+    os.environ["NUMBA_NUM_THREADS"] = "1"
+
+
+def estimate_record(model_path: str, task: dict[str, Any]) -> dict[str, Any]:
+    """Estimate one test image and score it (runs in a worker process).
+
+    Parameters
+    ----------
+    model_path : str
+        Model file to load (cached per process).
+    task : dict
+        ``image``, ``instance``, ``group``, ``truth`` (radians), ``box``
+        (true box or None), ``half_turn``, ``row``, ``split``.
+
+    Returns
+    -------
+    dict
+        The record (fields :data:`RECORD_FIELDS`).
+    """
+    est = _ESTIMATORS.get(model_path)
+    if est is None:
+        _ESTIMATORS.clear()
+        est = _ESTIMATORS[model_path] = PoseEstimator.load(model_path)
+    start = time.perf_counter()
+    result = est.estimate(task["image"])
+    seconds = time.perf_counter() - start
+    rec: dict[str, Any] = {k: task[k] for k in ("row", "split", "image", "instance", "group")}
+    truth_box = task["box"]
+    rec["truth_deg"] = math.degrees(task["truth"]) % 360.0
+    rec.update(dict(zip(("truth_box_x", "truth_box_y", "truth_box_w", "truth_box_h"),
+                        truth_box if truth_box is not None else [None] * 4, strict=True)))
+    rec["found"] = result.found
+    rec["seconds"] = seconds
+    best = result.best
+    if best is None:
+        rec.update(estimate_deg=None, error_deg=180.0 if not task["half_turn"] else 90.0,
+                   score=0.0, iou=0.0, detected=False)
+        return rec
+    rec.update(estimate_deg=best.azimuth_deg,
+               error_deg=pose_error_deg(best.azimuth, task["truth"], half_turn=task["half_turn"]),
+               score=best.score, inplane_deg=best.inplane_deg, scale=best.scale,
+               u=best.position[0], v=best.position[1],
+               box_x=best.box[0], box_y=best.box[1], box_w=best.box[2], box_h=best.box[3],
+               recognised=result.instance,
+               instance_margin=None if math.isnan(result.instance_margin)
+               else result.instance_margin)
+    if len(result.modes) > 1:
+        rec.update(second_deg=result.modes[1].azimuth_deg, second_score=result.modes[1].score)
+    if truth_box is not None and all(np.isfinite(truth_box)):
+        iou = float(box_iou(best.box, truth_box))
+        rec.update(iou=iou, detected=iou >= 0.5)
+    return rec
+
+
+# --- the driver side ------------------------------------------------------------------
+
+def _train(protocol: Protocol, row: Row, split: Split, path: Path,
+           log: Callable[[str], None]) -> dict[str, Any]:
+    """Train (or reuse) the model of a row on a split; returns its facts."""
+    params = {**protocol.base_params, **(row.params or {})}
+    wanted = PoseEstimator(**params).get_params()
+    if path.is_file():
+        try:
+            old = PoseEstimator.load(path)
+            if old.get_params() == wanted:
+                return _model_facts(old, float("nan"))
+        except (OSError, ValueError):
+            pass
+    log(f"training {row.name!r} on {split.name} ({len(split.train.images)} images)")
+    est = PoseEstimator(**params)
+    start = time.perf_counter()
+    ts = split.train
+    est.fit(ts.images, ts.poses, boxes=ts.boxes, instances=list(ts.instances) or None,
+            category=ts.category)
+    seconds = time.perf_counter() - start
+    est.save(path)
+    return _model_facts(est, seconds)
+
+
+def _model_facts(est: PoseEstimator, seconds: float) -> dict[str, Any]:
+    return {"train_seconds": seconds, "features": est.model_.n_features,
+            "features_full": est.full_model_.n_features,
+            "features_kept_percent": 100.0 * est.model_.n_features
+            / max(est.full_model_.n_features, 1)}
+
+
+def run_protocol(protocol: Protocol, out_dir: str | Path, *, jobs: int = 1, every: int = 1,
+                 rows: Sequence[str] | None = None,
+                 progress: Callable[[int, int], Any] | None = None,
+                 log: Callable[[str], None] = print) -> dict[str, Any]:
+    """Run (or resume) a protocol and write its results folder.
+
+    Parameters
+    ----------
+    protocol : Protocol
+        From :func:`posevote.evaluation.protocols.load_protocol`.
+    out_dir : str or Path
+        Results folder (created; see the module docstring for its layout).
+    jobs : int, optional
+        Worker processes for the test images (each uses one core).
+    every : int, optional
+        Test only every ``every``-th image of each split (1: all). A
+        subsample is recorded as such in the summary.
+    rows : sequence of str, optional
+        Only these rows (by name); default all.
+    progress : callable, optional
+        Called as ``progress(done, total)`` after each test image.
+    log : callable, optional
+        Receives one-line messages.
+
+    Returns
+    -------
+    dict
+        The summary (also written to ``summary.json``).
+    """
+    from posevote.evaluation.report import write_report
+
+    if jobs < 1 or every < 1:
+        raise ValueError(f"jobs and every must be >= 1, got jobs={jobs}, every={every}")
+    out = Path(out_dir)
+    chosen = list(protocol.rows)
+    if rows is not None:
+        names = {r.name for r in protocol.rows}
+        unknown = [r for r in rows if r not in names]
+        if unknown:
+            raise ValueError(f"unknown row(s) {unknown}; rows of {protocol.name}: "
+                             f"{', '.join(sorted(names))}")
+        chosen = [r for r in protocol.rows if r.name in rows]
+    (out / "models").mkdir(parents=True, exist_ok=True)
+    (out / "records").mkdir(parents=True, exist_ok=True)
+    runnable = [r for r in chosen if r.params is not None]
+    facts: dict[str, dict[str, Any]] = {}
+    plan: list[tuple[str, Path, list[dict[str, Any]]]] = []
+    total = done = 0
+    for row in runnable:
+        for split in protocol.splits:
+            key = f"{slug(row.name)}__{slug(split.name)}"
+            model_path = out / "models" / f"{key}.npz"
+            facts[key] = _train(protocol, row, split, model_path, log)
+            record_path = out / "records" / f"{key}.jsonl"
+            finished = {r["image"] for r in read_records(record_path)}
+            tasks = []
+            for i in range(0, len(split.test.images), every):
+                box = None if split.test.boxes is None else split.test.boxes[i].tolist()
+                task = {"row": row.name, "split": split.name, "image": str(split.test.images[i]),
+                        "instance": split.test.instances[i], "group": split.groups[i],
+                        "truth": float(split.test.poses[i, 0]), "box": box,
+                        "half_turn": split.half_turn}
+                total += 1
+                if task["image"] in finished:
+                    done += 1
+                else:
+                    tasks.append(task)
+            plan.append((str(model_path), record_path, tasks))
+    if done:
+        log(f"resuming: {done} of {total} test images already done")
+    if progress is not None:
+        progress(done, total)
+    start = time.perf_counter()
+    executor = ProcessPoolExecutor(max_workers=jobs, initializer=_init_worker) if jobs > 1 \
+        else None
+    try:
+        for model_path, record_path, tasks in plan:
+            if not tasks:
+                continue
+            results = (executor.map(estimate_record, [model_path] * len(tasks), tasks,
+                                    chunksize=1) if executor is not None
+                       else (estimate_record(model_path, t) for t in tasks))
+            with record_path.open("a", encoding="utf-8") as fh:
+                for rec in results:
+                    fh.write(json.dumps(rec) + "\n")
+                    fh.flush()
+                    os.fsync(fh.fileno())
+                    done += 1
+                    if progress is not None:
+                        progress(done, total)
+    finally:
+        if executor is not None:
+            executor.shutdown(wait=True, cancel_futures=True)
+    wall = time.perf_counter() - start
+    records = []
+    for row in runnable:
+        for split in protocol.splits:
+            key = f"{slug(row.name)}__{slug(split.name)}"
+            records += read_records(out / "records" / f"{key}.jsonl")
+    summary = summarize(protocol, chosen, records, facts, every=every)
+    summary["wall_seconds_this_run"] = wall
+    summary["jobs"] = jobs
+    write_report(protocol, summary, records, out)
+    return summary
+
+
+def summarize(protocol: Protocol, rows: Sequence[Row], records: Sequence[dict[str, Any]],
+              facts: dict[str, dict[str, Any]], *, every: int = 1) -> dict[str, Any]:
+    """Metrics of every row, overall and per group.
+
+    Returns
+    -------
+    dict
+        ``protocol``, ``every`` and ``rows``: one entry per row with
+        ``available``, ``note``, ``overall`` and ``groups`` (each: the error
+        summary of :func:`posevote.evaluation.metrics.summarize_errors`,
+        ``detection_rate`` (percent, when boxes are known),
+        ``recognition_rate`` (percent of views whose recognised instance is
+        the true one), ``median_seconds``), and the models' facts (training
+        time, features kept).
+    """
+    out_rows = []
+    for row in rows:
+        entry: dict[str, Any] = {"name": row.name, "available": row.params is not None,
+                                 "note": row.note}
+        mine = [r for r in records if r["row"] == row.name]
+        if row.params is not None and mine:
+            entry["overall"] = _metrics(mine)
+            entry["groups"] = {g: _metrics([r for r in mine if r["group"] == g])
+                               for g in sorted({r["group"] for r in mine})}
+            entry["instances"] = {n: _metrics([r for r in mine if r["instance"] == n])
+                                  for n in sorted({r["instance"] for r in mine})}
+            entry["models"] = {k: v for k, v in facts.items()
+                               if k.startswith(slug(row.name) + "__")}
+            kept = [v["features_kept_percent"] for v in entry["models"].values()]
+            entry["features_kept_percent"] = float(np.mean(kept)) if kept else None
+        out_rows.append(entry)
+    return {"protocol": protocol.name, "description": protocol.description, "every": every,
+            "rows": out_rows}
+
+
+def _metrics(records: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    m: dict[str, Any] = summarize_errors([r["error_deg"] for r in records])
+    det = [r["detected"] for r in records if r.get("detected") is not None]
+    m["detection_rate"] = float(100.0 * np.mean(det)) if det else None
+    rec = [r.get("recognised") == r["instance"] for r in records
+           if r.get("instance_margin") is not None]
+    m["recognition_rate"] = float(100.0 * np.mean(rec)) if rec else None
+    m["median_seconds"] = float(np.median([r["seconds"] for r in records]))
+    return m
