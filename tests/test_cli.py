@@ -121,3 +121,25 @@ def test_demo_runs_end_to_end(tmp_path):
     assert "median" in result.output
     assert (tmp_path / "results.csv").read_text().count("\n") == 3
     assert len(list(tmp_path.glob("test_*.png"))) == 2
+
+
+def test_evaluate_errors(tmp_path):
+    runner = CliRunner()
+    result = runner.invoke(cli, ["evaluate", "nonsense", "--data", str(tmp_path)])
+    assert result.exit_code == 2
+    result = runner.invoke(cli, ["evaluate", "coil-category", "--data", str(tmp_path / "none")])
+    assert result.exit_code == 1 and "data folder not found" in result.output
+    result = runner.invoke(cli, ["evaluate", "coil-category", "--data", str(tmp_path),
+                                 "--out", str(tmp_path / "o")])
+    assert result.exit_code == 1 and "no views of object 6" in result.output
+
+
+def test_evaluate_coil_category_subsample(coil_dir, tmp_path):
+    out = tmp_path / "coil"
+    result = CliRunner().invoke(cli, ["evaluate", "coil-category", "--data", str(coil_dir.parent),
+                                      "--out", str(out), "--every", "80", "--rows", "weights"])
+    assert result.exit_code == 0, result.output
+    summary = json.loads((out / "summary.json").read_text())
+    row = next(r for r in summary["rows"] if r["name"] == "weights")
+    assert summary["every"] == 80 and row["overall"]["n"] > 5
+    assert "| weights | cars seen |" in result.output and "HOG + 1-NN" in result.output

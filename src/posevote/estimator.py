@@ -144,8 +144,12 @@ class PoseEstimator:
         category estimate (Eqs. 5-6) and, when one wins by
         ``instance_margin``, re-estimate near it with that instance's full
         model (Sec. III-B).
-    instance_margin : float, default 1.1
+    instance_margin : float, default 1.0
         The winner's score must be at least this multiple of the runner-up's.
+    recognition_modes : int, default 2
+        Instances are scored at this many of the best category modes (a
+        front/back confusion of the category can be an instance's right
+        pose); the instance is refined at the mode where it scored best.
     max_modes : int, default 3
         Modes reported per image.
     min_score : float, default 0.0
@@ -186,7 +190,8 @@ class PoseEstimator:
         prune_pose_std_deg: float | None = None,
         prune_appearance_std: float | None = None,
         recognize_instance: bool = True,
-        instance_margin: float = 1.1,
+        instance_margin: float = 1.0,
+        recognition_modes: int = 2,
         max_modes: int = 3,
         min_score: float = 0.0,
     ) -> None:
@@ -222,6 +227,7 @@ class PoseEstimator:
         self.prune_appearance_std = prune_appearance_std
         self.recognize_instance = recognize_instance
         self.instance_margin = instance_margin
+        self.recognition_modes = recognition_modes
         self.max_modes = max_modes
         self.min_score = min_score
 
@@ -249,7 +255,7 @@ class PoseEstimator:
             if not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be a positive number, got {value!r}")
         for name in ("viewpoint_subdivisions", "scale_steps", "max_train_features", "max_modes",
-                     "vote_candidates"):
+                     "vote_candidates", "recognition_modes"):
             value = getattr(self, name)
             if not (isinstance(value, (int, np.integer)) and value >= 1):
                 raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
@@ -577,10 +583,14 @@ class PoseEstimator:
             hyps[0] = self._local(probes, modes[0], hyps[0], self.model_, fine)
         instance, margin = "", float("nan")
         if self._recognizing() and hyps and fine is not None:
-            best, margin = recognition_margin(self.instance_scores(hyps[0], feats, fine))
+            per_mode = np.array([self.instance_scores(h, feats, fine)
+                                 for h in hyps[:self.recognition_modes]])
+            best, margin = recognition_margin(per_mode.max(axis=0))
             if margin >= self.instance_margin:
                 instance = self.full_model_.instance_names[best]
-                hyps[0] = self._instance_refine(best, hyps[0], search_maps, fine)
+                at = int(np.argmax(per_mode[:, best]))
+                refined = self._instance_refine(best, hyps[at], search_maps, fine)
+                hyps = [refined] + [h for k, h in enumerate(hyps) if k != at]
         kept = tuple(h for h in hyps if h.score > self.min_score)
         return PoseEstimate(found=bool(kept), best=kept[0] if kept else None, modes=kept,
                             n_test_features=len(feats), seconds=time.perf_counter() - start,

@@ -97,3 +97,19 @@ def test_newer_format_is_refused(tmp_path, monkeypatch):
     monkeypatch.setattr(mf, "FORMAT_VERSION", 1)
     with pytest.raises(ValueError, match="format version 99 is newer"):
         mf.load_model(tmp_path / "new.npz")
+
+
+def test_select_instances_reindexes(synthetic_training):
+    from posevote import PoseEstimator
+
+    images, az, boxes = synthetic_training
+    est = PoseEstimator().fit(images, az, boxes=boxes, instances=["a"] * 6 + ["b"] * 6 + ["c"] * 6)
+    full = est.full_model_
+    sub = full.select_instances([2, 0])
+    assert sub.instance_names == ("c", "a") and sub.n_views == 12
+    assert set(sub.view_instance.tolist()) == {0, 1}
+    assert sub.n_features == np.sum(np.isin(full.view_instance[full.view], [0, 2]))
+    one = full.instance_model(1)
+    assert one.instance_names == ("b",) and one.n_views == 6 and one.view.max() == 5
+    with pytest.raises(ValueError, match="instance 7 has no training views"):
+        full.select_instances([7])

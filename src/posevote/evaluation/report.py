@@ -180,8 +180,10 @@ def plot_worst_cases(records: Sequence[dict[str, Any]], path: Path, *, n: int = 
                              box=(rec["box_x"], rec["box_y"], rec["box_w"], rec["box_h"]),
                              score=rec["score"], refined=True)
             est = PoseEstimate(found=True, best=hyp, modes=(hyp,))
-        truth = [rec.get(k) for k in ("truth_box_x", "truth_box_y", "truth_box_w", "truth_box_h")]
-        canvas = draw_overlay(img, est, truth_box=truth if None not in truth else None,
+        keys = ("truth_box_x", "truth_box_y", "truth_box_w", "truth_box_h")
+        truth = [float(rec[k]) for k in keys] if all(rec.get(k) is not None for k in keys) \
+            else None
+        canvas = draw_overlay(img, est, truth_box=truth,
                               label=f"true {rec['truth_deg']:.0f} est "
                                     f"{_fmt(rec.get('estimate_deg'), 0)}")
         ax.imshow(canvas[:, :, ::-1])

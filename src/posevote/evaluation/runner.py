@@ -72,6 +72,15 @@ def read_records(path: Path) -> list[dict[str, Any]]:
     return out
 
 
+def repair_records(path: Path) -> None:
+    """Cut a records file back to its last complete line (after an interruption)."""
+    if not path.is_file():
+        return
+    data = path.read_bytes()
+    if data and not data.endswith(b"\n"):
+        os.truncate(path, data.rfind(b"\n") + 1)
+
+
 # --- the worker side ------------------------------------------------------------------
 
 _ESTIMATORS: dict[str, PoseEstimator] = {}
@@ -191,12 +200,15 @@ def run_protocol(protocol: Protocol, out_dir: str | Path, *, jobs: int = 1, ever
     Returns
     -------
     dict
-        The summary (also written to ``summary.json``).
+        The summary (also written to ``summary.json``), with
+        ``wall_seconds_this_run`` (training included) and
+        ``wall_seconds_total`` (summed over the runs that built the folder).
     """
     from posevote.evaluation.report import write_report
 
     if jobs < 1 or every < 1:
         raise ValueError(f"jobs and every must be >= 1, got jobs={jobs}, every={every}")
+    run_start = time.perf_counter()
     out = Path(out_dir)
     chosen = list(protocol.rows)
     if rows is not None:
@@ -218,6 +230,7 @@ def run_protocol(protocol: Protocol, out_dir: str | Path, *, jobs: int = 1, ever
             model_path = out / "models" / f"{key}.npz"
             facts[key] = _train(protocol, row, split, model_path, log)
             record_path = out / "records" / f"{key}.jsonl"
+            repair_records(record_path)
             finished = {r["image"] for r in read_records(record_path)}
             tasks = []
             for i in range(0, len(split.test.images), every):
@@ -236,16 +249,15 @@ def run_protocol(protocol: Protocol, out_dir: str | Path, *, jobs: int = 1, ever
         log(f"resuming: {done} of {total} test images already done")
     if progress is not None:
         progress(done, total)
-    start = time.perf_counter()
     executor = ProcessPoolExecutor(max_workers=jobs, initializer=_init_worker) if jobs > 1 \
         else None
     try:
-        for model_path, record_path, tasks in plan:
+        for model_file, record_path, tasks in plan:
             if not tasks:
                 continue
-            results = (executor.map(estimate_record, [model_path] * len(tasks), tasks,
+            results = (executor.map(estimate_record, [model_file] * len(tasks), tasks,
                                     chunksize=1) if executor is not None
-                       else (estimate_record(model_path, t) for t in tasks))
+                       else (estimate_record(model_file, t) for t in tasks))
             with record_path.open("a", encoding="utf-8") as fh:
                 for rec in results:
                     fh.write(json.dumps(rec) + "\n")
@@ -257,14 +269,21 @@ def run_protocol(protocol: Protocol, out_dir: str | Path, *, jobs: int = 1, ever
     finally:
         if executor is not None:
             executor.shutdown(wait=True, cancel_futures=True)
-    wall = time.perf_counter() - start
     records = []
     for row in runnable:
         for split in protocol.splits:
             key = f"{slug(row.name)}__{slug(split.name)}"
             records += read_records(out / "records" / f"{key}.jsonl")
     summary = summarize(protocol, chosen, records, facts, every=every)
-    summary["wall_seconds_this_run"] = wall
+    previous = 0.0
+    if (out / "summary.json").is_file():
+        try:
+            previous = float(json.loads((out / "summary.json").read_text())
+                             .get("wall_seconds_total", 0.0))
+        except (ValueError, OSError, AttributeError):
+            previous = 0.0
+    summary["wall_seconds_this_run"] = time.perf_counter() - run_start
+    summary["wall_seconds_total"] = previous + summary["wall_seconds_this_run"]
     summary["jobs"] = jobs
     write_report(protocol, summary, records, out)
     return summary

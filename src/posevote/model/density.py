@@ -79,18 +79,32 @@ class PoseModel:
 
     def instance_model(self, instance: int) -> PoseModel:
         """The training pairs of one instance only (views re-indexed)."""
-        views = np.flatnonzero(self.view_instance == instance)
-        if len(views) == 0:
-            raise ValueError(f"instance {instance} has no training views")
+        return self.select_instances([instance])
+
+    def select_instances(self, instances: Sequence[int]) -> PoseModel:
+        """The training pairs of some instances only (views and instances re-indexed).
+
+        Raises
+        ------
+        ValueError
+            If an instance has no training views.
+        """
+        chosen = list(instances)
+        for i in chosen:
+            if not np.any(self.view_instance == i):
+                raise ValueError(f"instance {i} has no training views")
+        views = np.flatnonzero(np.isin(self.view_instance, chosen))
         local = np.full(self.n_views, -1, dtype=np.int64)
         local[views] = np.arange(len(views))
         keep = local[self.view] >= 0
+        renumber = {old: new for new, old in enumerate(chosen)}
         fields = {k: getattr(self, k) for k in self.__dataclass_fields__}
         fields.update(xy=self.xy[keep], theta=self.theta[keep], view=local[self.view[keep]],
                       weight=self.weight[keep], view_azimuth=self.view_azimuth[views],
                       view_elevation=self.view_elevation[views], view_box=self.view_box[views],
-                      view_instance=np.zeros(len(views), dtype=np.int64),
-                      instance_names=(self.instance_names[instance],))
+                      view_instance=np.array([renumber[int(i)] for i in self.view_instance[views]],
+                                             dtype=np.int64),
+                      instance_names=tuple(self.instance_names[i] for i in chosen))
         return PoseModel(**fields)
 
     def with_weights(self, weight: NDArray[np.float64]) -> PoseModel:

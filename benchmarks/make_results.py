@@ -1,0 +1,122 @@
+"""Regenerate docs/RESULTS.md from the evaluation protocols' result folders.
+
+With ``--run``, first runs (or resumes) ``posevote evaluate`` for each
+protocol and records its wall time; without it, only collects what the
+result folders already hold. Each protocol's ``report.md`` and plots are
+copied to ``docs/results/<protocol>/``; RESULTS.md links them, with the
+instance-level benchmark files and the pruning benchmark (Fig. 4) that the
+other scripts in this folder write. Nothing in RESULTS.md is typed by hand.
+
+Usage::
+
+    python benchmarks/make_results.py [--run] [--data ../shared/data] [--jobs 2]
+        [--results results] [--epfl-cv-every 4] [--protocols coil-category,epfl-single,epfl-cv]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+DOCS = ROOT / "docs"
+
+INTRO = """# Results
+
+Every number here comes from a script; this page is written by
+`benchmarks/make_results.py` from the result folders of `posevote evaluate`
+and from the files the other benchmark scripts write (their command is the
+first line of each). Machine: 2 cores, Python 3.11; each process uses one
+core; `--jobs 2` runs two.
+
+## COIL-100, one instance model per object (issue 2)
+
+16 objects, each trained on its views at 0, 20, ..., 340° and tested on its
+other 54; boxes and flat bottles scored on the half circle.
+
+- Clean test views (128×128): [`results/coil_instance.md`](results/coil_instance.md)
+- The same views pasted at a random position, scale 0.7-1.3 and in-plane
+  angle ±30° on cluttered photographs with 20% of the object hidden:
+  [`results/coil_instance_clutter.md`](results/coil_instance_clutter.md)
+"""
+
+PRUNING = """
+## Category models: model size and pruning (Fig. 4, issue 4)
+
+`python benchmarks/pruning.py --markdown docs/results/pruning.md --plot docs/results/pruning_fig4.png`
+
+"""
+
+OUTRO = """
+## Defaults
+
+Chosen by cross-validation on training data only (COIL training views; EPFL
+within cars 1-10): [`TUNING.md`](TUNING.md),
+[`results/tuning_coil_cv.md`](results/tuning_coil_cv.md).
+"""
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--run", action="store_true", help="run/resume the protocols first")
+    parser.add_argument("--data", default=str(ROOT.parent / "shared" / "data"))
+    parser.add_argument("--results", type=Path, default=ROOT / "results")
+    parser.add_argument("--jobs", type=int, default=2)
+    parser.add_argument("--epfl-cv-every", type=int, default=1)
+    parser.add_argument("--protocols", default="coil-category,epfl-single,epfl-cv")
+    args = parser.parse_args()
+    protocols = [p for p in args.protocols.split(",") if p]
+    walls_path = args.results / "walls.json"
+    walls = json.loads(walls_path.read_text()) if walls_path.is_file() else {}
+    if args.run:
+        for proto in protocols:
+            cmd = [sys.executable, "-m", "posevote.cli", "evaluate", proto, "--data", args.data,
+                   "--out", str(args.results / proto), "--jobs", str(args.jobs)]
+            if proto == "epfl-cv" and args.epfl_cv_every > 1:
+                cmd += ["--every", str(args.epfl_cv_every)]
+            start = time.perf_counter()
+            subprocess.run(cmd, check=True)
+            walls[proto] = {"seconds": time.perf_counter() - start, "jobs": args.jobs,
+                            "command": " ".join(cmd[1:]).replace(sys.executable, "python")}
+            args.results.mkdir(parents=True, exist_ok=True)
+            walls_path.write_text(json.dumps(walls, indent=2) + "\n")
+    parts = [INTRO]
+    for proto in protocols:
+        src = args.results / proto
+        if not (src / "report.md").is_file():
+            parts.append(f"\n## {proto}\n\nNot run yet: `posevote evaluate {proto} --data "
+                         f"../shared/data`.\n")
+            continue
+        dst = DOCS / "results" / proto
+        dst.mkdir(parents=True, exist_ok=True)
+        for f in sorted(src.glob("*.png")) + [src / "report.md", src / "summary.json"]:
+            shutil.copy2(f, dst / f.name)
+        report = (src / "report.md").read_text()
+        body = report.split("\n", 2)[2] if report.startswith("# ") else report
+        body = body.replace("](", f"](results/{proto}/")
+        wall = walls.get(proto)
+        summary = json.loads((src / "summary.json").read_text())
+        every = f" --every {summary['every']}" if summary.get("every", 1) > 1 else ""
+        wall_line = (f"Wall time: {wall['seconds'] / 60:.1f} min with `--jobs {wall['jobs']}` "
+                     f"(`{wall['command']}`).\n" if wall else
+                     f"Wall time: {summary.get('wall_seconds_total', float('nan')) / 60:.1f} min "
+                     f"with `--jobs {summary.get('jobs')}` (summed over resumed runs). Reproduce: "
+                     f"`posevote evaluate {proto} --data ../shared/data --jobs "
+                     f"{summary.get('jobs')}{every}`.\n")
+        parts.append(f"\n## {proto}\n\n{wall_line}\n{body}")
+    pruning = DOCS / "results" / "pruning.md"
+    if pruning.is_file():
+        parts.append(PRUNING + pruning.read_text()
+                     + "\n![Fig. 4](results/pruning_fig4.png)\n")
+    parts.append(OUTRO)
+    (DOCS / "RESULTS.md").write_text("".join(parts))
+    print(f"wrote {DOCS / 'RESULTS.md'}")
+
+
+if __name__ == "__main__":
+    main()

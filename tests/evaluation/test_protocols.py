@@ -1,0 +1,37 @@
+import pytest
+
+from posevote.evaluation.protocols import PROTOCOLS, load_protocol
+
+
+def test_unknown_protocol_and_missing_data(tmp_path):
+    with pytest.raises(ValueError, match="unknown protocol 'x'"):
+        load_protocol("x", tmp_path)
+    with pytest.raises(FileNotFoundError, match="data folder not found"):
+        load_protocol("coil-category", tmp_path / "nothing")
+    with pytest.raises(FileNotFoundError):
+        load_protocol("epfl-cv", tmp_path)
+
+
+def test_coil_category_splits(coil_dir):
+    proto = load_protocol("coil-category", coil_dir.parent)
+    assert [s.name for s in proto.splits] == ["cars", "boxes", "bottles"]
+    cars = proto.splits[0]
+    assert len(cars.train.images) == 4 * 18
+    assert cars.groups.count("cars seen") == 4 * 54 and cars.groups.count("cars unseen") == 2 * 72
+    assert not cars.half_turn and proto.splits[1].half_turn
+    assert [r.name for r in proto.rows][-1] == "refined with instance model"
+
+
+def test_epfl_protocols(epfl_dir):
+    single = load_protocol("epfl-single", epfl_dir.parent.parent)
+    assert [len(s.train.images) for s in single.splits] == [15, 30, 40]
+    for s in single.splits:
+        assert len(s.train.images) + len(s.test.images) == 118
+        assert not set(s.train.images) & set(s.test.images)
+    cv = load_protocol("epfl-cv", epfl_dir)
+    a, b = cv.splits
+    assert set(a.train.instances) == set(b.test.instances) == {f"car{c:02d}" for c in range(1, 6)}
+    # cars 11-20 are held out: their images are not in ../shared
+    with pytest.raises(FileNotFoundError, match="EPFL image not found"):
+        load_protocol("epfl-10-10", epfl_dir)
+    assert set(PROTOCOLS) == {"coil-category", "epfl-single", "epfl-10-10", "epfl-cv"}

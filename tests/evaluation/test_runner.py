@@ -1,0 +1,79 @@
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from posevote.data.training_set import TrainingSet
+from posevote.evaluation.protocols import Protocol, Row, Split
+from posevote.evaluation.runner import pose_error_deg, read_records, run_protocol, slug
+
+
+@pytest.fixture()
+def tiny_protocol(tmp_path_factory, synthetic_training, draw):
+    from posevote.data import object_box
+
+    images, az, boxes = synthetic_training
+    folder = tmp_path_factory.mktemp("tiny")
+    paths = []
+    for i, img in enumerate(images):
+        p = folder / f"train_{i:02d}.png"
+        cv2.imwrite(str(p), (img * 255).astype(np.uint8))
+        paths.append(p)
+    test_paths, test_az, test_boxes = [], [], []
+    for i, a in enumerate(np.radians([30.0, 110.0, 250.0, 330.0])):
+        img = draw(a)
+        p = folder / f"test_{i}.png"
+        cv2.imwrite(str(p), (img * 255).astype(np.uint8))
+        test_paths.append(p)
+        test_az.append([a, 0.0, 0.0])
+        test_boxes.append(object_box(img))
+    train = TrainingSet(images=tuple(paths), poses=np.column_stack([az, 0 * az, 0 * az]),
+                        boxes=boxes, masks=(None,) * len(paths), instances=("toy",) * len(paths))
+    test = TrainingSet(images=tuple(test_paths), poses=np.array(test_az),
+                       boxes=np.array(test_boxes), masks=(None,) * 4, instances=("toy",) * 4)
+    split = Split(name="only", train=train, test=test, groups=("seen",) * 4)
+    return Protocol(name="tiny", description="synthetic", splits=(split,),
+                    rows=(Row(name="weights + fitting", params={}),
+                          Row(name="later", params=None, note="arrives later")))
+
+
+def test_run_resume_and_report(tiny_protocol, tmp_path):
+    out = tmp_path / "res"
+    seen = []
+    summary = run_protocol(tiny_protocol, out, progress=lambda d, t: seen.append((d, t)),
+                           log=lambda m: None)
+    assert seen[-1] == (4, 4)
+    row = summary["rows"][0]
+    assert row["overall"]["n"] == 4 and row["overall"]["median"] < 20
+    assert row["overall"]["detection_rate"] == 100.0
+    assert summary["rows"][1] == {"name": "later", "available": False, "note": "arrives later"}
+    for name in ("summary.json", "results.csv", "report.md", "error_histogram.png",
+                 "per_instance.png", "scatter.png", "worst_cases.png"):
+        assert (out / name).is_file(), name
+    assert "not available: arrives later" in (out / "report.md").read_text()
+    assert json.loads((out / "summary.json").read_text())["protocol"] == "tiny"
+    assert len((out / "results.csv").read_text().splitlines()) == 5
+    # An interrupted run: the last record was cut short. The rerun redoes only it.
+    records = out / "records" / f"{slug('weights + fitting')}__only.jsonl"
+    lines = records.read_text().splitlines()
+    records.write_text("\n".join(lines[:2]) + "\n" + lines[2][:15])
+    done = []
+    again = run_protocol(tiny_protocol, out, progress=lambda d, t: done.append(d),
+                         log=lambda m: None)
+    assert done[0] == 2 and done[-1] == 4
+    assert len(read_records(records)) == 4
+    assert again["rows"][0]["overall"]["n"] == 4
+
+
+def test_run_rejects_bad_arguments(tiny_protocol, tmp_path):
+    with pytest.raises(ValueError, match="unknown row"):
+        run_protocol(tiny_protocol, tmp_path, rows=["nope"], log=lambda m: None)
+    with pytest.raises(ValueError, match="jobs and every"):
+        run_protocol(tiny_protocol, tmp_path, jobs=0, log=lambda m: None)
+
+
+def test_pose_error_half_turn():
+    assert pose_error_deg(np.radians(190), np.radians(10), half_turn=False) == pytest.approx(180)
+    assert pose_error_deg(np.radians(190), np.radians(10), half_turn=True) == pytest.approx(0)
+    assert pose_error_deg(np.radians(100), np.radians(10), half_turn=True) == pytest.approx(90)
