@@ -120,6 +120,10 @@ class PoseEstimator:
         pixels: the test features are divided by each searched scale and
         searched at scale 1 (a pyramid), so that small scales are not
         favoured by a relatively wider tolerance (beyond the paper).
+    chance_correction : bool, default False
+        With ``object_kernel``, score each scale by the fraction explained
+        above its chance level (see
+        :func:`posevote.inference.search.probe_poses`).
     k1_cutoff : float, default 0.1
         Training views whose pose kernel K1 is below this do not take part in
         a viewpoint's probe.
@@ -182,6 +186,7 @@ class PoseEstimator:
         density_cap: float | None = None,
         contrast: float = 0.0,
         object_kernel: bool = False,
+        chance_correction: bool = False,
         k1_cutoff: float = 0.1,
         vote_cell: float | None = None,
         max_voters: int | None = 200,
@@ -218,6 +223,7 @@ class PoseEstimator:
         self.density_cap = density_cap
         self.contrast = contrast
         self.object_kernel = object_kernel
+        self.chance_correction = chance_correction
         self.k1_cutoff = k1_cutoff
         self.vote_cell = vote_cell
         self.max_voters = max_voters
@@ -529,7 +535,8 @@ class PoseEstimator:
                            scales=scales, viewpoint_kappa=self.viewpoint_kappa_,
                            use_weights=self.weights, k1_cutoff=self.k1_cutoff,
                            cell=self.vote_cell, max_voters=self.max_voters,
-                           n_candidates=self.vote_candidates, progress=progress)
+                           n_candidates=self.vote_candidates,
+                           chance_correction=self.chance_correction, progress=progress)
 
     def probe(self, image: ImageLike, *, progress: Callable[[int], None] | None = None
               ) -> tuple[ProbeSet, EdgeFeatures]:

@@ -77,3 +77,15 @@ def test_pose_error_half_turn():
     assert pose_error_deg(np.radians(190), np.radians(10), half_turn=False) == pytest.approx(180)
     assert pose_error_deg(np.radians(190), np.radians(10), half_turn=True) == pytest.approx(0)
     assert pose_error_deg(np.radians(100), np.radians(10), half_turn=True) == pytest.approx(90)
+
+
+def test_changed_settings_redo_records(tiny_protocol, tmp_path):
+    from dataclasses import replace
+
+    out = tmp_path / "res"
+    run_protocol(tiny_protocol, out, log=lambda m: None)
+    changed = replace(tiny_protocol, rows=(replace(tiny_protocol.rows[0],
+                                                   params={"fitting": False}),))
+    messages, done = [], []
+    run_protocol(changed, out, log=messages.append, progress=lambda d, t: done.append(d))
+    assert done[0] == 0 and any("changed" in m for m in messages)

@@ -41,7 +41,8 @@ RECORD_FIELDS = (
     "row", "split", "image", "instance", "group", "truth_deg", "estimate_deg", "error_deg",
     "found", "score", "second_deg", "second_score", "inplane_deg", "scale", "u", "v",
     "box_x", "box_y", "box_w", "box_h", "truth_box_x", "truth_box_y", "truth_box_w",
-    "truth_box_h", "iou", "detected", "recognised", "instance_margin", "seconds",
+    "truth_box_h", "iou", "detected", "seen_instance", "recognised", "instance_margin",
+    "seconds",
 )
 
 
@@ -99,7 +100,7 @@ def estimate_record(model_path: str, task: dict[str, Any]) -> dict[str, Any]:
         Model file to load (cached per process).
     task : dict
         ``image``, ``instance``, ``group``, ``truth`` (radians), ``box``
-        (true box or None), ``half_turn``, ``row``, ``split``.
+        (true box or None), ``half_turn``, ``row``, ``split``, ``seen_instance``.
 
     Returns
     -------
@@ -113,7 +114,8 @@ def estimate_record(model_path: str, task: dict[str, Any]) -> dict[str, Any]:
     start = time.perf_counter()
     result = est.estimate(task["image"])
     seconds = time.perf_counter() - start
-    rec: dict[str, Any] = {k: task[k] for k in ("row", "split", "image", "instance", "group")}
+    rec: dict[str, Any] = {k: task[k] for k in ("row", "split", "image", "instance", "group",
+                                                 "seen_instance")}
     truth_box = task["box"]
     rec["truth_deg"] = math.degrees(task["truth"]) % 360.0
     rec.update(dict(zip(("truth_box_x", "truth_box_y", "truth_box_w", "truth_box_h"),
@@ -143,9 +145,13 @@ def estimate_record(model_path: str, task: dict[str, Any]) -> dict[str, Any]:
 
 # --- the driver side ------------------------------------------------------------------
 
-def _train(protocol: Protocol, row: Row, split: Split, path: Path,
+def _train(protocol: Protocol, row: Row, split: Split, path: Path, records: Path,
            log: Callable[[str], None]) -> dict[str, Any]:
-    """Train (or reuse) the model of a row on a split; returns its facts."""
+    """Train (or reuse) the model of a row on a split; returns its facts.
+
+    A model file whose settings differ from the row's is retrained, and the
+    records made with it are discarded.
+    """
     params = {**protocol.base_params, **(row.params or {})}
     wanted = PoseEstimator(**params).get_params()
     if path.is_file():
@@ -155,6 +161,9 @@ def _train(protocol: Protocol, row: Row, split: Split, path: Path,
                 return _model_facts(old, float("nan"))
         except (OSError, ValueError):
             pass
+        if records.is_file():
+            log(f"settings of {row.name!r} on {split.name} changed: its records are redone")
+            records.unlink()
     log(f"training {row.name!r} on {split.name} ({len(split.train.images)} images)")
     est = PoseEstimator(**params)
     start = time.perf_counter()
@@ -228,15 +237,17 @@ def run_protocol(protocol: Protocol, out_dir: str | Path, *, jobs: int = 1, ever
         for split in protocol.splits:
             key = f"{slug(row.name)}__{slug(split.name)}"
             model_path = out / "models" / f"{key}.npz"
-            facts[key] = _train(protocol, row, split, model_path, log)
             record_path = out / "records" / f"{key}.jsonl"
+            facts[key] = _train(protocol, row, split, model_path, record_path, log)
             repair_records(record_path)
             finished = {r["image"] for r in read_records(record_path)}
             tasks = []
+            trained = set(split.train.instances)
             for i in range(0, len(split.test.images), every):
                 box = None if split.test.boxes is None else split.test.boxes[i].tolist()
                 task = {"row": row.name, "split": split.name, "image": str(split.test.images[i]),
                         "instance": split.test.instances[i], "group": split.groups[i],
+                        "seen_instance": split.test.instances[i] in trained,
                         "truth": float(split.test.poses[i, 0]), "box": box,
                         "half_turn": split.half_turn}
                 total += 1
@@ -300,8 +311,8 @@ def summarize(protocol: Protocol, rows: Sequence[Row], records: Sequence[dict[st
         ``available``, ``note``, ``overall`` and ``groups`` (each: the error
         summary of :func:`posevote.evaluation.metrics.summarize_errors`,
         ``detection_rate`` (percent, when boxes are known),
-        ``recognition_rate`` (percent of views whose recognised instance is
-        the true one), ``median_seconds``), and the models' facts (training
+        ``recognition_rate`` (percent of the views of trained instances whose
+        recognised instance is the true one), ``median_seconds``), and the models' facts (training
         time, features kept).
     """
     out_rows = []
@@ -329,7 +340,7 @@ def _metrics(records: Sequence[dict[str, Any]]) -> dict[str, Any]:
     det = [r["detected"] for r in records if r.get("detected") is not None]
     m["detection_rate"] = float(100.0 * np.mean(det)) if det else None
     rec = [r.get("recognised") == r["instance"] for r in records
-           if r.get("instance_margin") is not None]
+           if r.get("instance_margin") is not None and r.get("seen_instance", True)]
     m["recognition_rate"] = float(100.0 * np.mean(rec)) if rec else None
     m["median_seconds"] = float(np.median([r["seconds"] for r in records]))
     return m

@@ -152,6 +152,7 @@ def probe_poses(
     cell: float | None = None,
     n_candidates: int = 3,
     max_voters: int | None = 200,
+    chance_correction: bool = False,
     progress: Callable[[int], None] | None = None,
 ) -> ProbeSet:
     """Evaluate p(w) at every probe of the grid (Fig. 2).
@@ -185,6 +186,12 @@ def probe_poses(
     max_voters : int or None, optional
         Training features that vote per probe (an even subset; all count in
         the exact score).
+    chance_correction : bool, optional
+        With one set of maps per scale, score ``(p - c) / (1 - c)`` where
+        ``c`` is that scale's chance level (:attr:`TestMaps.chance`): the
+        fraction explained above what random placement explains. Dividing
+        the test features by a larger scale packs the clutter tighter in
+        object units, so without it large scales win on clutter.
     progress : callable, optional
         Called with 1 after each viewpoint.
 
@@ -218,6 +225,9 @@ def probe_poses(
                     scale_maps, feats.xy, feats.theta, feats.weight, inplanes=inplanes,
                     scales=np.ones(1), cell=cell, n_candidates=n_candidates,
                     max_voters=max_voters)
+                if chance_correction:
+                    c = min(scale_maps.chance, 0.99)
+                    sc = np.maximum(sc - c, 0.0) / (1.0 - c)
                 score[v, :, k], translation[v, :, k] = sc[:, 0], tr[:, 0] * factor
         if progress is not None:
             progress(1)

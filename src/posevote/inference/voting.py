@@ -52,6 +52,10 @@ class TestMaps:
         Orientation bins searched on each side when pairing features.
     position_sigma : float
         Position kernel width of ``density``, pixels.
+    chance : float
+        Mean of ``density`` over pixels and orientations: the expected score
+        of a model dropped at random on the image (its edges explain that
+        fraction by chance).
     """
 
     xy: NDArray[np.float64]
@@ -62,6 +66,7 @@ class TestMaps:
     lut: NDArray[np.float64]
     vote_radius: int
     position_sigma: float
+    chance: float = 0.0
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -206,7 +211,8 @@ def prepare_test(features: EdgeFeatures, shape: tuple[int, int], *, position_sig
     return TestMaps(xy=features.xy[order].copy(), theta=features.theta[order].copy(),
                     weight=weight[order].copy(), bin_start=bin_start, density=density,
                     lut=np.where(lut >= vote_cutoff, lut, 0.0),
-                    vote_radius=min(radius, vote_bins // 2), position_sigma=float(position_sigma))
+                    vote_radius=min(radius, vote_bins // 2), position_sigma=float(position_sigma),
+                    chance=float(density.mean(dtype=np.float64)))
 
 
 def scaled_features(features: EdgeFeatures, shape: tuple[int, int], scale: float
