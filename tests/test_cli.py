@@ -143,3 +143,21 @@ def test_evaluate_coil_category_subsample(coil_dir, tmp_path):
     row = next(r for r in summary["rows"] if r["name"] == "weights")
     assert summary["every"] == 80 and row["overall"]["n"] > 5
     assert "| weights | cars seen |" in result.output and "HOG + 1-NN" in result.output
+
+
+def test_train_category_model_with_pruning(synthetic_training, tmp_path):
+    images, az, boxes = synthetic_training
+    lines = ["image,azimuth_deg,box_x,box_y,box_w,box_h,instance"]
+    for i, (img, a, b) in enumerate(zip(images, az, boxes, strict=True)):
+        for inst in ("a", "b"):
+            cv2.imwrite(str(tmp_path / f"{inst}{i:02d}.png"), (img * 255).astype(np.uint8))
+            lines.append(f"{inst}{i:02d}.png,{np.degrees(a):.1f},{b[0]},{b[1]},{b[2]},{b[3]},{inst}")
+    (tmp_path / "poses.csv").write_text("\n".join(lines) + "\n")
+    out = tmp_path / "cat.npz"
+    result = CliRunner().invoke(cli, ["train", str(tmp_path), "-o", str(out), "--prune",
+                                      "aggressive"])
+    assert result.exit_code == 0, result.output
+    assert "2 instance(s)" in result.output and "pruned from" in result.output
+    result = CliRunner().invoke(cli, ["estimate", str(out), str(tmp_path / "a03.png"), "--json"])
+    assert result.exit_code == 0, result.output
+    assert json.loads(result.output)["instance"] in ("a", "b")

@@ -92,16 +92,25 @@ def cli() -> None:
 @click.option("--azimuth-step-deg", type=float, default=None,
               help="COIL: train on the views at multiples of this step (default: all).")
 @click.option("--no-weights", is_flag=True, help="Store the model with weights switched off.")
+@click.option("--prune", type=click.Choice(["none", "moderate", "aggressive"]), default="none",
+              show_default=True, help="Prune a category model by clustering (Sec. III-A).")
 @click.option("--param", "params", multiple=True, metavar="NAME=VALUE",
               help="Estimator hyper-parameter (repeatable), e.g. position_sigma=2.5.")
 def train(source: Path, output: Path, layout: str, objects: str | None, cars: str | None,
-          azimuth_step_deg: float | None, no_weights: bool, params: tuple[str, ...]) -> None:
-    """Train a model from pose-annotated images in SOURCE."""
+          azimuth_step_deg: float | None, no_weights: bool, prune: str,
+          params: tuple[str, ...]) -> None:
+    """Train a model from pose-annotated images in SOURCE.
+
+    Several instances (an ``instance`` column, several COIL objects or EPFL
+    cars) make a category model.
+    """
     from posevote.data import read_coil, read_epfl, read_poses_csv
 
     settings = _parse_params(params)
     if no_weights:
         settings["weights"] = False
+    if prune != "none":
+        settings["prune"] = prune
     try:
         if layout == "csv":
             ts = read_poses_csv(source)
@@ -125,9 +134,10 @@ def train(source: Path, output: Path, layout: str, objects: str | None, cars: st
         est.save(output)
     except (FileNotFoundError, ValueError, TypeError) as exc:
         raise InputError(str(exc)) from None
-    m = est.model_
+    m, full = est.model_, est.full_model_
+    kept = "" if m is full else f" (pruned from {full.n_features})"
     click.echo(f"trained on {m.n_views} images ({len(m.instance_names)} instance(s)), "
-               f"{m.n_features} features, mean weight {m.weight.mean():.2f} -> {output}")
+               f"{m.n_features} features{kept}, mean weight {full.weight.mean():.2f} -> {output}")
 
 
 @cli.command()

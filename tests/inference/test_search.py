@@ -1,4 +1,5 @@
 import numpy as np
+import pytest
 
 from posevote.inference import viewpoint_grid
 
@@ -22,3 +23,20 @@ def test_probes_peak_near_the_truth(fitted_estimator, draw):
 def test_viewpoint_grid_regular_step(fitted_estimator):
     az, el = viewpoint_grid(fitted_estimator.model_, step=np.radians(30))
     assert np.allclose(np.degrees(az), np.arange(0, 360, 30)) and np.all(el == 0)
+
+
+def test_per_scale_maps_and_chance_correction(fitted_estimator, draw):
+    from posevote.inference import probe_poses
+    from posevote.inference.voting import scaled_features
+
+    est = fitted_estimator
+    feats, shape = est._features(draw(np.radians(60)))
+    scales = np.array([0.9, 1.1])
+    maps = [est._maps(*scaled_features(feats, shape, s), sigma=3.0, scale=s) for s in scales]
+    kw = dict(azimuths=np.radians([40.0, 60.0]), elevations=np.zeros(2), inplanes=np.zeros(1),
+              scales=scales, viewpoint_kappa=est.viewpoint_kappa_)
+    raw = probe_poses(est.model_, maps, **kw)
+    corrected = probe_poses(est.model_, maps, chance_correction=True, **kw)
+    assert np.all(corrected.score <= raw.score + 1e-12) and corrected.score.max() > 0
+    with pytest.raises(ValueError, match="one TestMaps per scale"):
+        probe_poses(est.model_, maps[:1], **kw)

@@ -81,3 +81,20 @@ def test_clutter_statistics():
     coh_t, crowd_t = edge_statistics(texture, (100, 100), sigma=4.0, spacing=2.0)
     assert np.median(coh_l) > 0.99 and np.median(crowd_l) == pytest.approx(1.0, abs=0.1)
     assert np.median(coh_t) < 0.5 and np.median(crowd_t) > 2.0
+
+
+def test_density_options_and_chance(scene):
+    from posevote.inference.voting import scaled_features
+
+    *_, maps = scene
+    assert maps.chance == pytest.approx(float(maps.density.mean()))
+    assert 0 < maps.chance < 0.5
+    feats = EdgeFeatures(xy=maps.xy, theta=maps.theta)
+    capped = prepare_test(feats, (100, 120), position_sigma=2.0, orientation_kappa=8.0,
+                          density_cap=0.5)
+    assert capped.density.max() <= 0.5 + 1e-6
+    flat = prepare_test(feats, (100, 120), position_sigma=2.0, orientation_kappa=8.0,
+                        contrast=1.0)
+    assert flat.density.min() >= 0 and flat.density.sum() < maps.density.sum()
+    half, shape = scaled_features(feats, (100, 120), 2.0)
+    assert shape == (50, 60) and np.allclose(half.xy, feats.xy / 2.0)
