@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import inspect
 import time
+from dataclasses import asdict
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -432,6 +433,7 @@ class PoseEstimator:
         self.model_ = self.full_model_ if preset is None else prune_model(
             self.full_model_, preset, position_sigma=self.position_sigma,
             orientation_kappa=self.orientation_kappa)
+        self.pruning_ = None if preset is None else asdict(preset)
         return self
 
     def _pruning(self) -> PruningPreset | None:
@@ -673,7 +675,8 @@ class PoseEstimator:
         model = self._check_fitted()
         full = getattr(self, "full_model_", model)
         save_model(path, model, self.get_params(),
-                   extra={"viewpoint_kappa": self.viewpoint_kappa_},
+                   extra={"viewpoint_kappa": self.viewpoint_kappa_,
+                          "pruning": getattr(self, "pruning_", None)},
                    full_model=None if full is model else full)
 
     @classmethod
@@ -694,4 +697,5 @@ class PoseEstimator:
         est.model_ = model
         est.full_model_ = model if full is None else full
         est.viewpoint_kappa_ = float(extra.get("viewpoint_kappa", est._viewpoint_kappa(model)))
+        est.pruning_ = extra.get("pruning")
         return est

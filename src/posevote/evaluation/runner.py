@@ -157,7 +157,9 @@ def _train(protocol: Protocol, row: Row, split: Split, path: Path, records: Path
     if path.is_file():
         try:
             old = PoseEstimator.load(path)
-            if old.get_params() == wanted:
+            preset = PoseEstimator(**params)._pruning()
+            if old.get_params() == wanted and old.pruning_ == (
+                    None if preset is None else vars(preset)):
                 return _model_facts(old, float("nan"))
         except (OSError, ValueError):
             pass
