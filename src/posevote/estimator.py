@@ -14,8 +14,8 @@ from __future__ import annotations
 
 import inspect
 import time
-from dataclasses import asdict
 from collections.abc import Callable, Sequence
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
