@@ -103,7 +103,7 @@ def main() -> None:
         summary = json.loads((src / "summary.json").read_text())
         every = f" --every {summary['every']}" if summary.get("every", 1) > 1 else ""
         wall_line = (f"Wall time: {wall['seconds'] / 60:.1f} min with `--jobs {wall['jobs']}` "
-                     f"(`{wall['command']}`).\n" if wall else
+                     f"(`{wall['command'].replace('-m posevote.cli', 'posevote')}`).\n" if wall else
                      f"Wall time: {summary.get('wall_seconds_total', float('nan')) / 60:.1f} min "
                      f"with `--jobs {summary.get('jobs')}` (summed over resumed runs). Reproduce: "
                      f"`posevote evaluate {proto} --data ../shared/data --jobs "
