@@ -113,6 +113,8 @@ def main() -> None:
     if pruning.is_file():
         parts.append(PRUNING + pruning.read_text()
                      + "\n![Fig. 4](results/pruning_fig4.png)\n")
+        for other in sorted((DOCS / "results").glob("pruning_*.md")):
+            parts.append(f"\nA larger feature budget ({other.name}):\n\n{other.read_text()}")
     parts.append(OUTRO)
     (DOCS / "RESULTS.md").write_text("".join(parts))
     print(f"wrote {DOCS / 'RESULTS.md'}")
