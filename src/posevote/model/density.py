@@ -78,8 +78,14 @@ class PoseModel:
         return viewing_direction(self.view_azimuth, self.view_elevation)
 
     def instance_model(self, instance: int) -> PoseModel:
-        """The training pairs of one instance only (views re-indexed)."""
-        return self.select_instances([instance])
+        """The training pairs of one instance only (views re-indexed; built once, then cached)."""
+        if not 0 <= instance < len(self.instance_names):
+            raise ValueError(f"instance {instance} has no training views")
+        return self._instance_models[instance]
+
+    @cached_property
+    def _instance_models(self) -> tuple[PoseModel, ...]:
+        return tuple(self.select_instances([i]) for i in range(len(self.instance_names)))
 
     def select_instances(self, instances: Sequence[int]) -> PoseModel:
         """The training pairs of some instances only (views and instances re-indexed).

@@ -30,7 +30,6 @@ boundaries, which costs a little pruning and nothing else.
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -145,8 +144,7 @@ def cluster_features(pose: NDArray[np.float64], appearance: NDArray[np.float64],
 
 
 def prune_model(model: PoseModel, preset: PruningPreset, *, position_sigma: float,
-                orientation_kappa: float, max_block: int = 2048,
-                progress: Callable[[int], None] | None = None) -> PoseModel:
+                orientation_kappa: float, max_block: int = 2048) -> PoseModel:
     """Keep only the cluster centres of a (pooled) model.
 
     Parameters
@@ -161,8 +159,6 @@ def prune_model(model: PoseModel, preset: PruningPreset, *, position_sigma: floa
         Appearance kernel concentration in doubled orientation.
     max_block : int, optional
         See :func:`cluster_features`.
-    progress : callable, optional
-        Called once when done (for symmetry with the other long stages).
 
     Returns
     -------
@@ -203,8 +199,6 @@ def prune_model(model: PoseModel, preset: PruningPreset, *, position_sigma: floa
     view = np.empty(n, dtype=np.int64)
     view[labels[first]] = model.view[first]
     weight = np.bincount(labels, weights=model.weight, minlength=n)
-    if progress is not None:
-        progress(1)
     fields = {k: getattr(model, k) for k in model.__dataclass_fields__}
     fields.update(xy=xy, theta=theta, view=view, weight=weight)
     return PoseModel(**fields)
