@@ -109,9 +109,12 @@ class PoseEstimator:
         Test edge points up to this crowding (local edge density relative to
         a lone contour) keep their full weight; denser ones are discounted.
     density_cap : float or None, default None
-        Saturate the test density phi at this value (a model feature is
-        explained or not, however dense the edges around it); None: the
-        paper's unbounded density.
+        Saturate the search's test density phi at this value (a model
+        feature is explained or not, however dense the edges around it);
+        None: the paper's unbounded density. For cluttered scenes searched
+        over a wide scale range, 0.5 with ``object_kernel`` and
+        ``chance_correction`` was best in the cluttered COIL
+        cross-validation (``docs/TUNING.md``; beyond the paper).
     contrast : float, default 0.0
         Subtract this fraction of the orientation-averaged test density from
         each orientation's density, so that texture matching every
@@ -149,8 +152,11 @@ class PoseEstimator:
         category estimate (Eqs. 5-6) and, when one wins by
         ``instance_margin``, re-estimate near it with that instance's full
         model (Sec. III-B).
-    instance_margin : float, default 1.0
-        The winner's score must be at least this multiple of the runner-up's.
+    instance_margin : float, default 1.05
+        The winner's score must be at least this multiple of the runner-up's
+        (chosen by cross-validation on COIL training views, seen instances
+        and instances left out of the model alike:
+        ``benchmarks/tune_category_cv.py --margins``).
     recognition_modes : int, default 2
         Instances are scored at this many of the best category modes (a
         front/back confusion of the category can be an instance's right
@@ -196,7 +202,7 @@ class PoseEstimator:
         prune_pose_std_deg: float | None = None,
         prune_appearance_std: float | None = None,
         recognize_instance: bool = True,
-        instance_margin: float = 1.0,
+        instance_margin: float = 1.05,
         recognition_modes: int = 2,
         max_modes: int = 3,
         min_score: float = 0.0,
@@ -500,13 +506,20 @@ class PoseEstimator:
         return feats, (int(img.shape[0]), int(img.shape[1]))
 
     def _maps(self, feats: EdgeFeatures, shape: tuple[int, int], *, sigma: float,
-              scale: float = 1.0) -> TestMaps:
+              scale: float = 1.0, search: bool = False) -> TestMaps:
+        """Test maps at kernel width ``sigma``; ``density_cap`` applies to the search's only.
+
+        The cap was chosen for the coarse search in clutter; the narrow maps
+        of the local and instance refinements keep the unsaturated density,
+        whose ridges give the precise alignment.
+        """
         return prepare_test(feats, shape, position_sigma=sigma,
                             orientation_kappa=self.orientation_kappa,
                             edge_spacing=self.edge_spacing / scale, clutter_sigma=self.clutter_sigma,
                             coherence_floor=self.coherence_floor,
                             crowding_limit=self.crowding_limit,
-                            density_cap=self.density_cap, contrast=self.contrast)
+                            density_cap=self.density_cap if search else None,
+                            contrast=self.contrast)
 
     def _search_maps(self, feats: EdgeFeatures, shape: tuple[int, int]
                      ) -> TestMaps | list[TestMaps]:
@@ -514,9 +527,9 @@ class PoseEstimator:
         inplanes, scales = self.search_grid()
         sigma = self.search_sigma(inplanes, scales)
         if not self.object_kernel:
-            return self._maps(feats, shape, sigma=sigma)
-        return [self._maps(*scaled_features(feats, shape, float(s)), sigma=sigma, scale=float(s))
-                for s in scales]
+            return self._maps(feats, shape, sigma=sigma, search=True)
+        return [self._maps(*scaled_features(feats, shape, float(s)), sigma=sigma, scale=float(s),
+                           search=True) for s in scales]
 
     def _probe(self, maps: TestMaps | list[TestMaps], progress: Callable[[int], None] | None,
                *, model: PoseModel | None = None, near: Hypothesis | None = None) -> ProbeSet:

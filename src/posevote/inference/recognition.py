@@ -80,13 +80,11 @@ def explained_fraction(test: EdgeFeatures, model: PoseModel, hypothesis: Hypothe
     spacing = float(np.median(tree.query(xy, k=2)[0][:, 1])) if len(xy) > 1 else 1.0
     gain = max(spacing, 1e-6) / (np.sqrt(2.0 * np.pi) * position_sigma)
     pts, ths = test.xy[inside], test.theta[inside]
-    total = np.zeros(len(pts))
-    for j, near in enumerate(tree.query_ball_point(pts, 3.0 * position_sigma)):
-        if near:
-            near_arr = np.asarray(near)
-            d2 = np.sum((xy[near_arr] - pts[j]) ** 2, axis=1)
-            total[j] = np.sum(strength[near_arr] * position_kernel(d2, position_sigma)
-                              * orientation_kernel(theta[near_arr] - ths[j], orientation_kappa))
+    pairs = tree.sparse_distance_matrix(cKDTree(pts), 3.0 * position_sigma, output_type="ndarray")
+    i, j, dist = pairs["i"], pairs["j"], pairs["v"]
+    terms = (strength[i] * position_kernel(dist ** 2, position_sigma)
+             * orientation_kernel(theta[i] - ths[j], orientation_kappa))
+    total = np.bincount(j, weights=terms, minlength=len(pts))
     return float(np.mean(np.minimum(gain * total, 1.0)))
 
 
