@@ -26,7 +26,6 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import ast
 import contextlib
 import io
 import json
@@ -40,6 +39,8 @@ from pathlib import Path
 import numpy as np
 
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
+
+from _settings import parse_settings  # noqa: E402
 
 from posevote import PoseEstimator  # noqa: E402
 from posevote.data import read_coil  # noqa: E402
@@ -136,10 +137,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--json", help="write per-object results here")
     ap.add_argument("--markdown", help="also write the printed report here, as a markdown file")
     args = ap.parse_args(argv)
-    params = {}
-    for item in args.param:
-        name, _, value = item.partition("=")
-        params[name] = ast.literal_eval(value)
+    params = parse_settings(args.param)
     objects = [int(o) for o in args.objects.split(",")]
     rows = [r.strip() for r in args.rows.split(",")]
     for r in rows:

@@ -31,7 +31,6 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import ast
 import os
 import shlex
 import sys
@@ -40,6 +39,8 @@ from pathlib import Path
 import numpy as np
 
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
+
+from _settings import parse_settings  # noqa: E402
 
 from posevote import PoseEstimator  # noqa: E402
 from posevote.data import read_coil  # noqa: E402
@@ -132,8 +133,7 @@ def main() -> None:
         if args.markdown:
             args.markdown.write_text("\n".join(lines) + "\n")
         return
-    settings = [{}] if not args.param else [
-        {p.split("=", 1)[0]: ast.literal_eval(p.split("=", 1)[1])} for p in args.param]
+    settings = [{}] if not args.param else [parse_settings([p]) for p in args.param]
     lines = ["Command: `python " + " ".join(shlex.quote(a) for a in sys.argv) + "`", "",
              "| setting | " + " | ".join(f"{c} median / mean / recognised %"
                                          for c in COIL_CATEGORIES) + " | sum of medians "
