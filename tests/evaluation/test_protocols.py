@@ -1,6 +1,6 @@
 import pytest
 
-from posevote.evaluation.protocols import PROTOCOLS, load_protocol
+from posevote.evaluation.protocols import PROTOCOLS, epfl_single, load_protocol
 
 
 def test_unknown_protocol_and_missing_data(tmp_path):
@@ -35,3 +35,14 @@ def test_epfl_protocols(epfl_dir):
     with pytest.raises(FileNotFoundError, match="EPFL image not found"):
         load_protocol("epfl-10-10", epfl_dir)
     assert set(PROTOCOLS) == {"coil-category", "epfl-single", "epfl-10-10", "epfl-cv"}
+
+
+def test_epfl_single_on_development_cars(epfl_dir):
+    # The protocol of Fig. 6 on other cars (the development set of its settings).
+    dev = epfl_single(epfl_dir, cars=(2, 3))
+    assert [s.name for s in dev.splits] == ["car02-15", "car02-30", "car02-40",
+                                           "car03-15", "car03-30", "car03-40"]
+    assert {n for s in dev.splits for n in s.train.instances + s.test.instances} == {
+        "car02", "car03"}
+    assert dev.base_params == load_protocol("epfl-single", epfl_dir).base_params
+    assert "cars 2, 3" in dev.description

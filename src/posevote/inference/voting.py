@@ -194,12 +194,16 @@ def prepare_test(features: EdgeFeatures, shape: tuple[int, int], *, position_sig
     # and an isolated edge sampled every `edge_spacing` pixels then sums to
     # sqrt(2 pi) sigma / spacing, which is brought to 1.
     gain = np.sqrt(2.0 * np.pi) * position_sigma * edge_spacing
+    # The planes are blurred in single precision (the maps' own), which
+    # OpenCV does two to four times faster than double.
+    plane = np.zeros((h, w), dtype=np.float32)
     for b, c in enumerate(centres):
-        plane = np.zeros((h, w), dtype=np.float64)
-        np.add.at(plane, (rows, cols), weight * orientation_kernel(features.theta - c,
-                                                                   orientation_kappa))
-        density[b] = gain * cv2.GaussianBlur(plane, (0, 0), position_sigma,
-                                             borderType=cv2.BORDER_CONSTANT)
+        plane[:] = 0.0
+        np.add.at(plane, (rows, cols), (weight * orientation_kernel(features.theta - c,
+                                                                    orientation_kappa)
+                                        ).astype(np.float32))
+        density[b] = np.float32(gain) * cv2.GaussianBlur(plane, (0, 0), position_sigma,
+                                                         borderType=cv2.BORDER_CONSTANT)
     if contrast > 0:
         density -= np.float32(contrast) * density.mean(axis=0, keepdims=True)
         np.maximum(density, 0.0, out=density)

@@ -1,0 +1,88 @@
+"""Settings sweeps for the EPFL protocols, on development data only.
+
+``--protocol epfl-cv`` (default) runs the first row of
+``posevote evaluate epfl-cv`` (cars 1-5 train / 6-10 test, then the other
+way round; full frames): this is how ``EPFL_CATEGORY_PARAMS`` was chosen.
+``--protocol epfl-single`` runs the protocol of Fig. 6 (15, 30 and 40
+evenly spaced training frames, one instance model per car, the other
+frames tested) on cars 2-10 instead of car 1, which the protocol reports
+on: this is how ``EPFL_SINGLE_PARAMS`` was chosen.
+
+Both go through the same runner as ``posevote evaluate``, on every
+``--every``-th test frame, with ``EPFL_PARAMS`` plus the settings given, and
+print one line per setting: median, mean, % under 45 degrees, detection
+rate, seconds per frame (and, for epfl-single, the median and mean of each
+training-set size). Cars 11-20 (the held-out test set) are never read.
+Results are in docs/TUNING.md.
+
+Usage::
+
+    python benchmarks/tune_epfl.py [--protocol epfl-cv|epfl-single] [--cars 2,3,...]
+        [--every 8] [--setting "density_cap=0.5 position_sigma=6.0" ...]
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+os.environ.setdefault("NUMBA_NUM_THREADS", "1")
+
+from _settings import parse_settings  # noqa: E402
+
+from posevote.evaluation.protocols import EPFL_PARAMS, epfl_cv, epfl_single  # noqa: E402
+from posevote.evaluation.runner import run_protocol  # noqa: E402
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--data", default=str(Path(__file__).resolve().parents[2] / "shared"
+                                              / "data"))
+    parser.add_argument("--protocol", choices=("epfl-cv", "epfl-single"), default="epfl-cv")
+    parser.add_argument("--cars", default=None,
+                        help="comma-separated cars (default: 1-10 for epfl-cv, 2-10 for "
+                             "epfl-single)")
+    parser.add_argument("--every", type=int, default=8)
+    parser.add_argument("--jobs", type=int, default=2)
+    parser.add_argument("--setting", action="append", default=[],
+                        help="space-separated NAME=VALUE items; one line per --setting "
+                             "(none: EPFL_PARAMS alone)")
+    args = parser.parse_args(argv)
+    if args.cars:
+        cars = [int(c) for c in args.cars.split(",")]
+    else:
+        cars = list(range(1 if args.protocol == "epfl-cv" else 2, 11))
+    if args.protocol == "epfl-single" and 1 in cars:
+        parser.error("car 1 is the epfl-single protocol's test car; develop on cars 2-10")
+    builder = epfl_cv if args.protocol == "epfl-cv" else epfl_single
+    base = builder(args.data, cars=cars)
+    row_name = base.rows[0].name  # the settings below decide what it runs
+    for text in args.setting or [""]:
+        overrides = parse_settings(text.split())
+        protocol = dataclasses.replace(base, base_params={**EPFL_PARAMS, **overrides})
+        start = time.perf_counter()
+        with tempfile.TemporaryDirectory() as out:
+            summary = run_protocol(protocol, out, jobs=args.jobs, every=args.every,
+                                   rows=[row_name],
+                                   log=lambda _msg: None)
+        row = next(r for r in summary["rows"] if r["name"] == row_name)
+        m = row["overall"]
+        groups = ""
+        if args.protocol == "epfl-single":
+            groups = " | " + ", ".join(
+                f"{name.split()[0]}: {g['median']:.2f}/{g['mean']:.2f}"
+                for name, g in sorted(row["groups"].items(), key=lambda kv: int(kv[0].split()[0])))
+        print(f"{overrides or 'EPFL_PARAMS'}: n={m['n']} median {m['median']:.2f} "
+              f"mean {m['mean']:.1f} <45 {m['under_45']:.1f}% "
+              f"detected {m['detection_rate']:.1f}% s/img {m['median_seconds']:.2f} "
+              f"wall {time.perf_counter() - start:.0f} s{groups}", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
