@@ -72,6 +72,8 @@ def test_unfitted_raises():
         ({"prune": "harsh"}, "unknown pruning preset"),
         ({"prune_pose_std_deg": -1.0}, "pruning knobs must be positive"),
         ({"instance_margin": 0.5}, "instance_margin must be >= 1"),
+        ({"max_search_features": 0}, "max_search_features must be an integer >= 1 or None"),
+        ({"max_voters": 2.5}, "max_voters must be an integer >= 1 or None"),
     ],
 )
 def test_bad_parameters(synthetic_training, kwargs, message):

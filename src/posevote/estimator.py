@@ -136,6 +136,11 @@ class PoseEstimator:
     max_voters : int or None, default 200
         Training features that vote per probe (an even subset); all of them
         count in the exact score.
+    max_search_features : int or None, default None
+        At most about this many training features per viewpoint take part in
+        the grid search at all (an even subset); None: all. For pooled
+        category models, whose viewpoints gather thousands of features;
+        local refinement and instance recognition score with all of them.
     vote_candidates : int, default 2
         Vote peaks per probe whose exact score is computed.
     prune : {None, "moderate", "aggressive"}, default None
@@ -197,6 +202,7 @@ class PoseEstimator:
         k1_cutoff: float = 0.1,
         vote_cell: float | None = None,
         max_voters: int | None = 200,
+        max_search_features: int | None = None,
         vote_candidates: int = 2,
         prune: str | None = None,
         prune_pose_std_deg: float | None = None,
@@ -234,6 +240,7 @@ class PoseEstimator:
         self.k1_cutoff = k1_cutoff
         self.vote_cell = vote_cell
         self.max_voters = max_voters
+        self.max_search_features = max_search_features
         self.vote_candidates = vote_candidates
         self.prune = prune
         self.prune_pose_std_deg = prune_pose_std_deg
@@ -272,6 +279,10 @@ class PoseEstimator:
             value = getattr(self, name)
             if not (isinstance(value, (int, np.integer)) and value >= 1):
                 raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
+        for name in ("max_voters", "max_search_features", "max_test_features"):
+            value = getattr(self, name)
+            if value is not None and not (isinstance(value, (int, np.integer)) and value >= 1):
+                raise ValueError(f"{name} must be an integer >= 1 or None, got {value!r}")
         lo, hi = self.scale_range
         if not 0 < lo <= hi:
             raise ValueError(f"scale_range must satisfy 0 < low <= high, got {self.scale_range}")
@@ -550,6 +561,7 @@ class PoseEstimator:
                            scales=scales, viewpoint_kappa=self.viewpoint_kappa_,
                            use_weights=self.weights, k1_cutoff=self.k1_cutoff,
                            cell=self.vote_cell, max_voters=self.max_voters,
+                           max_features=self.max_search_features,
                            n_candidates=self.vote_candidates,
                            chance_correction=self.chance_correction, progress=progress)
 

@@ -72,6 +72,25 @@ def test_search_finds_the_translation(scene):
     assert score[1, 1] == pytest.approx(2.0 / (np.sqrt(2 * np.pi) * 2.0), abs=0.04)
 
 
+def test_search_on_a_feature_subset(scene):
+    train_xy, train_theta, train_w, alpha, scale, t, maps = scene
+    grid = {"inplanes": np.array([0.0, alpha, 0.4]), "scales": np.array([1.0, scale])}
+    full = search_translations(maps, train_xy, train_theta, train_w, **grid)
+    same = search_translations(maps, train_xy, train_theta, train_w, max_features=40, **grid)
+    assert np.array_equal(full[0], same[0]) and np.array_equal(full[1], same[1])
+    # Every second feature, weights scaled to the same total: same pose, and
+    # the score is still the weighted fraction explained.
+    score, trans = search_translations(maps, train_xy, train_theta, train_w, max_features=20,
+                                       **grid)
+    assert np.unravel_index(np.argmax(score), score.shape) == (1, 1)
+    assert trans[1, 1] == pytest.approx(t, abs=0.5)
+    assert score[1, 1] == pytest.approx(full[0][1, 1], rel=0.1)
+    ref = gather_score(maps.density, train_xy[::2], train_theta[::2],
+                       train_w[::2] / train_w[::2].sum(), alpha, scale, *trans[1, 1])
+    # (the search's peak value is interpolated between pixels, hence rel 1e-2)
+    assert score[1, 1] == pytest.approx(ref, rel=1e-2)
+
+
 def test_clutter_statistics():
     line = EdgeFeatures(xy=np.stack([np.arange(10, 90, 2.0), np.full(40, 50.0)], 1),
                         theta=np.zeros(40))

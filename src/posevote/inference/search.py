@@ -152,6 +152,7 @@ def probe_poses(
     cell: float | None = None,
     n_candidates: int = 3,
     max_voters: int | None = 200,
+    max_features: int | None = None,
     chance_correction: bool = False,
     progress: Callable[[int], None] | None = None,
 ) -> ProbeSet:
@@ -186,6 +187,9 @@ def probe_poses(
     max_voters : int or None, optional
         Training features that vote per probe (an even subset; all count in
         the exact score).
+    max_features : int or None, optional
+        Training features that take part per probe at all (an even subset;
+        see :func:`posevote.inference.voting.search_translations`).
     chance_correction : bool, optional
         With one set of maps per scale, score ``(p - c) / (1 - c)`` where
         ``c`` is that scale's chance level (:attr:`TestMaps.chance`): the
@@ -218,13 +222,14 @@ def probe_poses(
         elif isinstance(maps, TestMaps):
             score[v], translation[v] = search_translations(
                 maps, feats.xy, feats.theta, feats.weight, inplanes=inplanes, scales=scales,
-                cell=cell, n_candidates=n_candidates, max_voters=max_voters)
+                cell=cell, n_candidates=n_candidates, max_voters=max_voters,
+                max_features=max_features)
         else:
             for k, (scale_maps, factor) in enumerate(zip(per_scale, scales, strict=True)):
                 sc, tr = search_translations(
                     scale_maps, feats.xy, feats.theta, feats.weight, inplanes=inplanes,
                     scales=np.ones(1), cell=cell, n_candidates=n_candidates,
-                    max_voters=max_voters)
+                    max_voters=max_voters, max_features=max_features)
                 if chance_correction:
                     c = min(scale_maps.chance, 0.99)
                     sc = np.maximum(sc - c, 0.0) / (1.0 - c)

@@ -577,7 +577,7 @@ def search_translations(maps: TestMaps, train_xy: NDArray[np.float64],
                         train_theta: NDArray[np.float64], train_w: NDArray[np.float64], *,
                         inplanes: NDArray[np.float64], scales: NDArray[np.float64],
                         cell: float | None = None, n_candidates: int = 3,
-                        max_voters: int | None = 200
+                        max_voters: int | None = 200, max_features: int | None = None
                         ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Best translation and its score for every (in-plane angle, scale) step.
 
@@ -600,6 +600,12 @@ def search_translations(maps: TestMaps, train_xy: NDArray[np.float64],
     max_voters : int or None, optional
         At most about this many training features vote (an even stride
         through them); all of them count in the exact score.
+    max_features : int or None, optional
+        If given, at most about this many training features (an even stride
+        through them, their weights scaled to the same total) take part at
+        all, in the votes and in the exact score. A pooled category model has
+        thousands of features per viewpoint, and the exact score of every
+        polished candidate reads all of them.
 
     Returns
     -------
@@ -613,6 +619,12 @@ def search_translations(maps: TestMaps, train_xy: NDArray[np.float64],
     if cell is None:
         cell = max(1.5, maps.position_sigma / 1.5)
     taps = blur_taps(maps.position_sigma / cell)
+    if max_features is not None and len(train_theta) > max_features:
+        keep = slice(0, None, int(np.ceil(len(train_theta) / max_features)))
+        total = float(np.sum(train_w))
+        train_xy, train_theta, train_w = train_xy[keep], train_theta[keep], train_w[keep]
+        subtotal = float(np.sum(train_w))
+        train_w = train_w * (total / subtotal) if subtotal > 0 else train_w
     stride = 1 if max_voters is None else max(1, int(np.ceil(len(train_theta) / max_voters)))
     if len(train_theta) and len(maps.theta):
         _search_kernel(np.ascontiguousarray(train_xy, dtype=np.float64),
