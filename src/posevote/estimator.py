@@ -139,8 +139,9 @@ class PoseEstimator:
     max_search_features : int or None, default None
         At most about this many training features per viewpoint take part in
         the grid search at all (an even subset); None: all. For pooled
-        category models, whose viewpoints gather thousands of features;
-        local refinement and instance recognition score with all of them.
+        category models, whose viewpoints gather thousands of features. The
+        instance refinement's search uses the subset too; the local
+        refinement and the recognition scores read all of them.
     vote_candidates : int, default 2
         Vote peaks per probe whose exact score is computed.
     prune : {None, "moderate", "aggressive"}, default None

@@ -46,3 +46,5 @@ def test_epfl_single_on_development_cars(epfl_dir):
         "car02", "car03"}
     assert dev.base_params == load_protocol("epfl-single", epfl_dir).base_params
     assert "cars 2, 3" in dev.description
+    with pytest.raises(ValueError, match="at least one car"):
+        epfl_single(epfl_dir, cars=())

@@ -74,8 +74,8 @@ EPFL_PARAMS: dict[str, Any] = {
 # A viewpoint of the pooled model of five cars gathers about 4000 features
 # (five cars, several frames each within the pose kernel), and the exact score
 # of every polished search candidate read them all. Searching on an even
-# subset of 1000 (``max_search_features``; the refinements and recognition
-# still use all) took 1.28 instead of 2.19 s per frame on the same sweep, for
+# subset of 1000 (``max_search_features``; local refinement and recognition
+# still read all) took 1.28 instead of 2.19 s per frame on the same sweep, for
 # 55.7 against 57.0% under 45 degrees (two frames of 149); 500 lost 4 points.
 # Chosen for the 15-minute budget of epfl-10-10.
 EPFL_CATEGORY_PARAMS: dict[str, Any] = {**EPFL_PARAMS, "position_sigma": 6.0, "density_cap": 0.5,
@@ -280,14 +280,17 @@ def epfl_single(data: str | Path, *, cars: Sequence[int] = (1,)) -> Protocol:
     instance settings (``benchmarks/tune_epfl.py --protocol epfl-single``),
     so that car 1 is only ever used to report.
     """
+    if not cars:
+        raise ValueError("epfl-single needs at least one car")
     folder = _epfl_folder(data)
     splits = []
     for car in cars:
         seq = read_epfl(folder, cars=[car])
         n = len(seq.images)
         for k in (15, 30, 40):
-            train_idx = sorted(set(np.linspace(0, n, k, endpoint=False).round().astype(int)))
-            test_idx = [i for i in range(n) if i not in set(train_idx)]
+            chosen = set(np.linspace(0, n, k, endpoint=False).round().astype(int).tolist())
+            train_idx = sorted(chosen)
+            test_idx = [i for i in range(n) if i not in chosen]
             splits.append(Split(name=f"car{car:02d}-{k}", train=_subset(seq, train_idx),
                                 test=_subset(seq, test_idx), groups=(f"{k} training images",)
                                 * len(test_idx)))
