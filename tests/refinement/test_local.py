@@ -3,7 +3,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from posevote.refinement import find_modes, polish_pose
+from posevote.refinement import find_modes, polish_pose, refine_mode
 from posevote.refinement.local import profile_refine
 
 
@@ -23,7 +23,6 @@ def scene(fitted_estimator, draw):
 def test_polish_recovers_a_perturbed_pose(scene):
     est, probes, fine, _ = scene
     kw = dict(viewpoint_kappa=est.viewpoint_kappa_, k1_cutoff=est.k1_cutoff)
-    from posevote.refinement import refine_mode
 
     start = refine_mode(probes, find_modes(probes)[0], fit=False)
     good = polish_pose(start, est.model_, fine, **kw)
@@ -44,3 +43,29 @@ def test_profile_refine_lands_between_training_views(scene):
     assert hyp.refined
     assert abs(hyp.azimuth_deg - 60.0) < 10.0
     assert hyp.position == pytest.approx(centre, abs=3.0)
+
+
+def test_start_near_keeps_to_the_mode_object():
+    from posevote.inference import ProbeSet
+    from posevote.refinement.local import start_near
+
+    # Viewpoint 1's best probe (score 0.9) sits on clutter far from the mode;
+    # its second-best one (0.5) is on the mode's object.
+    score = np.zeros((2, 1, 2))
+    translation = np.zeros((2, 1, 2, 2))
+    score[0, 0, 0], translation[0, 0, 0] = 0.8, (50.0, 50.0)
+    score[1, 0, 0], translation[1, 0, 0] = 0.5, (54.0, 48.0)
+    score[1, 0, 1], translation[1, 0, 1] = 0.9, (200.0, 30.0)
+    probes = ProbeSet(azimuth=np.radians([0.0, 20.0]), elevation=np.zeros(2),
+                      inplane=np.zeros(1), scale=np.array([1.0, 0.7]), score=score,
+                      translation=translation, box=np.full((2, 2), 40.0))
+    anchor = refine_mode(probes, 0, fit=False)
+    start = start_near(probes, 1, anchor)
+    assert start.position == (54.0, 48.0) and start.score == 0.5 and start.scale == 1.0
+    assert start.azimuth == pytest.approx(np.radians(20.0))
+    # With nothing on the object, the anchor's pose is carried to the viewpoint.
+    probes.score[1, 0, 0] = 0.0
+    probes.translation[1, 0, 0] = (120.0, 120.0)
+    moved = start_near(probes, 1, anchor)
+    assert moved.position == anchor.position and moved.scale == anchor.scale
+    assert moved.azimuth == pytest.approx(np.radians(20.0))

@@ -77,6 +77,48 @@ def polish_pose(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps, *,
                    score=float(-result.fun))
 
 
+def start_near(probes: ProbeSet, viewpoint: int, anchor: Hypothesis) -> Hypothesis:
+    """The best probe of a viewpoint that lies on the same object as an anchor pose.
+
+    Parameters
+    ----------
+    probes : ProbeSet
+        The probes of the grid search.
+    viewpoint : int
+        Index of the viewpoint.
+    anchor : Hypothesis
+        The mode's pose; its position is where the object was found.
+
+    Returns
+    -------
+    Hypothesis
+        The best of the viewpoint's probes whose box (at its in-plane angle
+        and scale) contains the anchor's position; in clutter a neighbouring
+        viewpoint's best probe may sit on another part of the image. If none
+        does, the anchor's in-plane angle, scale and position at this
+        viewpoint.
+    """
+    az, el = float(probes.azimuth[viewpoint]), float(probes.elevation[viewpoint])
+    offset = np.abs(probes.translation[viewpoint] - np.asarray(anchor.position))  # (A, S, 2)
+    cos, sin = np.abs(np.cos(probes.inplane)), np.abs(np.sin(probes.inplane))
+    w, h = probes.box[viewpoint]
+    half = np.stack([w * cos + h * sin, w * sin + h * cos], axis=-1)[:, None, :] \
+        * probes.scale[None, :, None] / 2.0
+    inside = np.all(offset <= half, axis=-1)
+    score = np.where(inside, probes.score[viewpoint], -np.inf)
+    if not np.isfinite(score).any():
+        return replace(anchor, azimuth=az, elevation=el, refined=False,
+                       box=box_from_pose(np.asarray(anchor.position),
+                                         probes.box[viewpoint] * anchor.scale, anchor.inplane))
+    a, s = np.unravel_index(int(np.argmax(score)), score.shape)
+    position = probes.translation[viewpoint, a, s]
+    alpha, scale = float(probes.inplane[a]), float(probes.scale[s])
+    return Hypothesis(azimuth=az, elevation=el, inplane=alpha, scale=scale,
+                      position=(float(position[0]), float(position[1])),
+                      box=box_from_pose(position, probes.box[viewpoint] * scale, alpha),
+                      score=float(probes.score[viewpoint, a, s]), refined=False)
+
+
 def profile_refine(probes: ProbeSet, viewpoint: int, model: PoseModel, maps: TestMaps, *,
                    viewpoint_kappa: float, use_weights: bool = True, k1_cutoff: float = 0.1,
                    radius_steps: float = 2.5) -> Hypothesis:
@@ -84,11 +126,12 @@ def profile_refine(probes: ProbeSet, viewpoint: int, model: PoseModel, maps: Tes
 
     For every probed viewpoint near the mode, the exact p(w) is maximised over
     in-plane angle, scale and translation with the narrow kernel
-    (:func:`polish_pose`, started from that viewpoint's best probe). The
-    viewpoint distribution of Sec. II-B is then fitted to these maximised
-    scores instead of the grid's, and the pose is polished once more at the
-    fitted viewpoint. The grid's coarse steps and widened kernel then no
-    longer blur the comparison between viewpoints.
+    (:func:`polish_pose`, started from that viewpoint's best probe on the
+    mode's object, :func:`start_near`). The viewpoint distribution of
+    Sec. II-B is then fitted to these maximised scores instead of the
+    grid's, and the pose is polished once more at the fitted viewpoint. The
+    grid's coarse steps and widened kernel then no longer blur the
+    comparison between viewpoints.
 
     Parameters
     ----------
@@ -106,9 +149,10 @@ def profile_refine(probes: ProbeSet, viewpoint: int, model: PoseModel, maps: Tes
     Hypothesis
     """
     views = neighbour_viewpoints(probes, viewpoint, radius_steps=radius_steps)
+    anchor = refine_mode(probes, viewpoint, fit=False)
     polished = []
     for v in views:
-        start = refine_mode(probes, int(v), fit=False)
+        start = start_near(probes, int(v), anchor)
         polished.append(polish_pose(start, model, maps, viewpoint_kappa=viewpoint_kappa,
                                     use_weights=use_weights, k1_cutoff=k1_cutoff))
     score = np.array([h.score for h in polished])
