@@ -67,6 +67,8 @@ def test_unfitted_raises():
         ({"clutter_sigma": 0}, "clutter_sigma"),
         ({"coherence_floor": 1.5}, "coherence_floor"),
         ({"density_cap": 0}, "density_cap must be positive"),
+        ({"refine_scale_steps": 0.0}, "refine_scale_steps must be positive or None"),
+        ({"refine_scale_steps": float("nan")}, "refine_scale_steps must be positive or None"),
         ({"contrast": 2}, "contrast must be in"),
         ({"viewpoint_step_deg": -5}, "viewpoint_step_deg must be positive"),
         ({"prune": "harsh"}, "unknown pruning preset"),

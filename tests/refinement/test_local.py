@@ -43,6 +43,10 @@ def test_profile_refine_lands_between_training_views(scene):
     assert hyp.refined
     assert abs(hyp.azimuth_deg - 60.0) < 10.0
     assert hyp.position == pytest.approx(centre, abs=3.0)
+    anchor = refine_mode(probes, modes[0], fit=False)
+    held = profile_refine(probes, modes[0], est.model_, fine, scale_margin=0.02,
+                          viewpoint_kappa=est.viewpoint_kappa_, k1_cutoff=est.k1_cutoff)
+    assert abs(np.log(held.scale / anchor.scale)) <= 0.02 + 1e-9
 
 
 def test_start_near_keeps_to_the_mode_object():
@@ -69,3 +73,20 @@ def test_start_near_keeps_to_the_mode_object():
     moved = start_near(probes, 1, anchor)
     assert moved.position == anchor.position and moved.scale == anchor.scale
     assert moved.azimuth == pytest.approx(np.radians(20.0))
+
+
+def test_polish_keeps_the_scale_within_bounds(scene):
+    est, probes, fine, _ = scene
+    kw = dict(viewpoint_kappa=est.viewpoint_kappa_, k1_cutoff=est.k1_cutoff)
+    start = refine_mode(probes, find_modes(probes)[0], fit=False)
+    good = polish_pose(start, est.model_, fine, **kw)
+    shrunk = replace(good, scale=good.scale * 0.85)
+    free = polish_pose(shrunk, est.model_, fine, **kw)
+    held = polish_pose(shrunk, est.model_, fine, scale_bounds=(0.8 * good.scale,
+                                                               0.87 * good.scale), **kw)
+    assert free.scale == pytest.approx(good.scale, rel=0.03)
+    assert 0.8 * good.scale - 1e-9 <= held.scale <= 0.87 * good.scale + 1e-9
+    # A start outside the bounds may stay where it is but not move farther out.
+    outside = polish_pose(shrunk, est.model_, fine, scale_bounds=(0.95 * good.scale,
+                                                                  1.05 * good.scale), **kw)
+    assert outside.scale >= shrunk.scale - 1e-9

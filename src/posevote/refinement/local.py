@@ -24,7 +24,8 @@ from posevote.results import Hypothesis
 
 def polish_pose(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps, *,
                 viewpoint_kappa: float, use_weights: bool = True, k1_cutoff: float = 0.1,
-                max_shift: float = 8.0) -> Hypothesis:
+                max_shift: float = 8.0, scale_bounds: tuple[float, float] | None = None
+                ) -> Hypothesis:
     """Maximise the exact p(w) around a hypothesis over (alpha, log s, u, v).
 
     Parameters
@@ -40,6 +41,9 @@ def polish_pose(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps, *,
     max_shift : float, optional
         The translation moves at most this many pixels; the angle and scale
         at most by the equivalent at the model's typical radius.
+    scale_bounds : (float, float) or None, optional
+        The scale also stays within these bounds (or, if the hypothesis
+        starts outside them, no farther out than it starts).
 
     Returns
     -------
@@ -56,10 +60,12 @@ def polish_pose(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps, *,
     # Work in units where one step moves a typical feature by about a pixel.
     unit = np.array([1.0 / radius, 1.0 / radius, 1.0, 1.0])
     start = np.array([hypothesis.inplane, np.log(hypothesis.scale), *hypothesis.position])
+    log_lo, log_hi = (-np.inf, np.inf) if scale_bounds is None else np.log(scale_bounds)
+    log_lo, log_hi = min(log_lo, start[1]), max(log_hi, start[1])
 
     def negative_score(z: np.ndarray) -> float:
         alpha, log_s, u, v = start + z * unit
-        if np.any(np.abs(z) > max_shift):
+        if np.any(np.abs(z) > max_shift) or not log_lo <= log_s <= log_hi:
             return 0.0
         return -gather_score(maps.density, feats.xy, feats.theta, feats.weight, alpha,
                              float(np.exp(log_s)), u, v)
@@ -121,7 +127,8 @@ def start_near(probes: ProbeSet, viewpoint: int, anchor: Hypothesis) -> Hypothes
 
 def profile_refine(probes: ProbeSet, viewpoint: int, model: PoseModel, maps: TestMaps, *,
                    viewpoint_kappa: float, use_weights: bool = True, k1_cutoff: float = 0.1,
-                   radius_steps: float = 2.5) -> Hypothesis:
+                   radius_steps: float = 2.5, scale_margin: float | None = None
+                   ) -> Hypothesis:
     """Fit the viewpoint on the profile likelihood, then polish (beyond the paper).
 
     For every probed viewpoint near the mode, the exact p(w) is maximised over
@@ -143,6 +150,12 @@ def profile_refine(probes: ProbeSet, viewpoint: int, model: PoseModel, maps: Tes
         As in :func:`polish_pose` (``maps`` with the narrow kernel).
     radius_steps : float, optional
         Viewpoints within this many probe spacings take part.
+    scale_margin : float or None, optional
+        Every polish keeps the scale within a factor ``exp(scale_margin)``
+        of the mode's best probe (None: only the polish's own step bound).
+        The narrow score is not corrected for chance, and in clutter it
+        grows as the model shrinks onto dense edges; the search, whose
+        score is, chose the scale.
 
     Returns
     -------
@@ -150,11 +163,14 @@ def profile_refine(probes: ProbeSet, viewpoint: int, model: PoseModel, maps: Tes
     """
     views = neighbour_viewpoints(probes, viewpoint, radius_steps=radius_steps)
     anchor = refine_mode(probes, viewpoint, fit=False)
+    bounds = None if scale_margin is None else (anchor.scale * float(np.exp(-scale_margin)),
+                                                anchor.scale * float(np.exp(scale_margin)))
     polished = []
     for v in views:
         start = start_near(probes, int(v), anchor)
         polished.append(polish_pose(start, model, maps, viewpoint_kappa=viewpoint_kappa,
-                                    use_weights=use_weights, k1_cutoff=k1_cutoff))
+                                    use_weights=use_weights, k1_cutoff=k1_cutoff,
+                                    scale_bounds=bounds))
     score = np.array([h.score for h in polished])
     profile = ProbeSet(azimuth=probes.azimuth[views], elevation=probes.elevation[views],
                        inplane=np.zeros(1), scale=np.ones(1), score=score[:, None, None],
@@ -166,5 +182,5 @@ def profile_refine(probes: ProbeSet, viewpoint: int, model: PoseModel, maps: Tes
         return seed
     moved = replace(seed, azimuth=fitted.azimuth, elevation=fitted.elevation, refined=True)
     final = polish_pose(moved, model, maps, viewpoint_kappa=viewpoint_kappa,
-                        use_weights=use_weights, k1_cutoff=k1_cutoff)
+                        use_weights=use_weights, k1_cutoff=k1_cutoff, scale_bounds=bounds)
     return replace(final, refined=True)
