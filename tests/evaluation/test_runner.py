@@ -89,3 +89,20 @@ def test_changed_settings_redo_records(tiny_protocol, tmp_path):
     messages, done = [], []
     run_protocol(changed, out, log=messages.append, progress=lambda d, t: done.append(d))
     assert done[0] == 0 and any("changed" in m for m in messages)
+
+
+def test_records_of_other_code_are_redone(tiny_protocol, tmp_path):
+    import json
+
+    from posevote.evaluation.runner import code_fingerprint
+
+    out = tmp_path / "res"
+    run_protocol(tiny_protocol, out, log=lambda m: None)
+    assert json.loads((out / "code.json").read_text()) == {"fingerprint": code_fingerprint()}
+    messages, done = [], []
+    run_protocol(tiny_protocol, out, log=messages.append, progress=lambda d, t: done.append(d))
+    assert done[0] > 0 and not any("other posevote code" in m for m in messages)
+    (out / "code.json").write_text(json.dumps({"fingerprint": "0123456789abcdef"}))
+    messages, done = [], []
+    run_protocol(tiny_protocol, out, log=messages.append, progress=lambda d, t: done.append(d))
+    assert done[0] == 0 and any("other posevote code" in m for m in messages)

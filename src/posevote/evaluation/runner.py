@@ -2,6 +2,7 @@
 
 Layout of a results folder (``--out``)::
 
+    code.json                     fingerprint of the posevote code that made the records
     models/<row>__<split>.npz     trained models (reused when their settings match)
     records/<row>__<split>.jsonl  one JSON line per finished test image
     results.csv                   every record of every row (written at the end)
@@ -12,17 +13,22 @@ Layout of a results folder (``--out``)::
 Resuming: records are appended one line at a time, flushed and synced, so
 an interrupted run keeps what it finished; a new run with the same
 ``--out`` skips the images already recorded (a last line cut short by the
-interruption is ignored and redone). ``results.csv``, ``summary.json`` and
+interruption is ignored and redone). Records and models made by other
+posevote code (another version, or edited sources: ``code.json`` holds a
+hash of the package's source files) are discarded and redone, so a folder
+never mixes the results of two versions. ``results.csv``, ``summary.json`` and
 the plots are written atomically, from the records, once every image is
 done.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import os
 import re
+import shutil
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
@@ -145,6 +151,36 @@ def estimate_record(model_path: str, task: dict[str, Any]) -> dict[str, Any]:
 
 # --- the driver side ------------------------------------------------------------------
 
+def code_fingerprint() -> str:
+    """Hash of the posevote package's source files (names and contents)."""
+    root = Path(__file__).resolve().parents[1]
+    digest = hashlib.sha256()
+    for path in sorted(root.rglob("*.py")):
+        digest.update(path.relative_to(root).as_posix().encode())
+        digest.update(path.read_bytes())
+    return digest.hexdigest()[:16]
+
+
+def _check_code(out: Path, log: Callable[[str], None]) -> None:
+    """Discard models and records that other posevote code made (see the module docstring)."""
+    from posevote._io import atomic_write_text
+
+    marker = out / "code.json"
+    current = code_fingerprint()
+    try:
+        previous = json.loads(marker.read_text()).get("fingerprint")
+    except (OSError, ValueError, AttributeError):
+        previous = None
+    stale = [d for d in (out / "models", out / "records") if d.is_dir() and any(d.iterdir())]
+    if previous != current and stale:
+        log(f"{out}: made by other posevote code (fingerprint {previous} here, {current} "
+            "now): its models and records are redone")
+        for d in stale:
+            shutil.rmtree(d)
+    out.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(marker, json.dumps({"fingerprint": current}) + "\n")
+
+
 def _train(protocol: Protocol, row: Row, split: Split, path: Path, records: Path,
            log: Callable[[str], None]) -> dict[str, Any]:
     """Train (or reuse) the model of a row on a split; returns its facts.
@@ -229,6 +265,7 @@ def run_protocol(protocol: Protocol, out_dir: str | Path, *, jobs: int = 1, ever
             raise ValueError(f"unknown row(s) {unknown}; rows of {protocol.name}: "
                              f"{', '.join(sorted(names))}")
         chosen = [r for r in protocol.rows if r.name in rows]
+    _check_code(out, log)
     (out / "models").mkdir(parents=True, exist_ok=True)
     (out / "records").mkdir(parents=True, exist_ok=True)
     runnable = [r for r in chosen if r.params is not None]
