@@ -656,8 +656,9 @@ class PoseEstimator:
         if self.fitting:
             margin = None
             if self.refine_scale_steps is not None:
+                # The grid's log-scale step, as in search_sigma (0 for one scale).
                 _, scales = self.search_grid()
-                step = float(np.log(scales[-1] / scales[0])) / max(len(scales) - 1, 1)
+                step = float(np.median(np.diff(np.log(scales)))) if len(scales) > 1 else 0.0
                 margin = self.refine_scale_steps * max(step, 0.05)
             return profile_refine(probes, viewpoint, model, fine, scale_margin=margin, **kw)
         return polish_pose(hyp, model, fine, **kw)
