@@ -76,20 +76,20 @@ CLUTTER_SEARCH = {"inplane_range_deg": (-30.0, 30.0), "scale_range": (0.7, 1.3),
                   "object_kernel": True, "chance_correction": True, "density_cap": 0.5}
 
 
-def splits(cv: bool | str) -> list[tuple[list[int], list[int]]]:
-    """(train azimuths, test azimuths) in degrees for the protocol, its CV folds or the self-test."""
-    if cv == "self":
+def splits(kind: str) -> list[tuple[list[int], list[int]]]:
+    """(train azimuths, test azimuths) in degrees: ``kind`` is "protocol", "cv" or "self"."""
+    if kind == "self":
         return [(list(range(0, 360, 20)), list(range(0, 360, 20)))]
-    if not cv:
+    if kind == "protocol":
         return [(list(range(0, 360, 20)), [a for a in range(0, 360, 5) if a % 20])]
     views = list(range(0, 360, 20))
     return [([a for i, a in enumerate(views) if i % 3 != r], views[r::3]) for r in range(3)]
 
 
-def run_object(obj: int, data: str, cv: bool | str, clutter: bool, params: dict, seed: int,
+def run_object(obj: int, data: str, kind: str, clutter: bool, params: dict, seed: int,
                rows: list[str]) -> dict:
     parts = [run_split(obj, data, train_az, test_az, clutter, params, seed, rows)
-             for train_az, test_az in splits(cv)]
+             for train_az, test_az in splits(kind)]
     out = dict(parts[0])
     out["train_s"] = float(np.mean([p["train_s"] for p in parts]))
     for row in rows:
@@ -161,10 +161,10 @@ def main(argv: list[str] | None = None) -> int:
         if r not in ROWS:
             ap.error(f"unknown row {r!r}; rows: {', '.join(ROWS)}")
     t0 = time.perf_counter()
-    split = "self" if args.selftest else args.cv
+    kind = "self" if args.selftest else "cv" if args.cv else "protocol"
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
         results = list(pool.map(run_object, objects, [args.data] * len(objects),
-                                [split] * len(objects), [args.clutter] * len(objects),
+                                [kind] * len(objects), [args.clutter] * len(objects),
                                 [params] * len(objects), [args.seed] * len(objects),
                                 [rows] * len(objects)))
     wall = time.perf_counter() - t0

@@ -44,7 +44,7 @@ def main(argv: list[str] | None = None) -> int:
     moved = []
     for obj in (int(o) for o in args.objects.split(",")):
         period = np.pi if obj in HALF_TURN else 2 * np.pi
-        for train_az, test_az in splits(cv=True):
+        for train_az, test_az in splits("cv"):
             train = read_coil(args.data, objects=[obj], azimuths_deg=train_az)
             test = read_coil(args.data, objects=[obj], azimuths_deg=test_az)
             est = PoseEstimator().fit(train.load_images(), train.poses, boxes=train.boxes)
