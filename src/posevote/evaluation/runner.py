@@ -37,6 +37,7 @@ from typing import Any
 
 import numpy as np
 
+from posevote._io import atomic_write_text
 from posevote.estimator import PoseEstimator
 from posevote.evaluation.metrics import box_iou, summarize_errors
 from posevote.evaluation.protocols import Protocol, Row, Split
@@ -163,8 +164,6 @@ def code_fingerprint() -> str:
 
 def _check_code(out: Path, log: Callable[[str], None]) -> None:
     """Discard models and records that other posevote code made (see the module docstring)."""
-    from posevote._io import atomic_write_text
-
     marker = out / "code.json"
     current = code_fingerprint()
     try:
