@@ -67,6 +67,7 @@ def test_unfitted_raises():
         ({"clutter_sigma": 0}, "clutter_sigma"),
         ({"coherence_floor": 1.5}, "coherence_floor"),
         ({"density_cap": 0}, "density_cap must be positive"),
+        ({"refine_modes": 0}, "refine_modes must be an integer >= 1"),
         ({"refine_scale_steps": 0.0}, "refine_scale_steps must be positive or None"),
         ({"refine_scale_steps": float("nan")}, "refine_scale_steps must be positive or None"),
         ({"contrast": 2}, "contrast must be in"),
@@ -124,6 +125,18 @@ def test_weights_and_fitting_switch_off(synthetic_training, draw):
     assert not best.refined
     assert best.azimuth_deg % 20 == pytest.approx(0.0, abs=1e-6) or \
         best.azimuth_deg % 20 == pytest.approx(20.0, abs=1e-6)
+
+
+def test_local_refinement_ranks_the_refined_modes(synthetic_training, draw):
+    images, az, boxes = synthetic_training
+    est = PoseEstimator(local_refinement=True, refine_modes=3).fit(images, az, boxes=boxes)
+    truth = np.radians(130.0)
+    result = est.estimate(draw(truth))
+    assert len(result.modes) >= 2
+    n = min(3, len(result.modes))
+    scores = [m.score for m in result.modes[:n]]
+    assert scores == sorted(scores, reverse=True)
+    assert np.degrees(angular_error(result.best.azimuth, truth)) < 10.0
 
 
 def test_coil_instance_real_data(coil_dir):

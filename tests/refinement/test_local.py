@@ -90,3 +90,30 @@ def test_polish_keeps_the_scale_within_bounds(scene):
     outside = polish_pose(shrunk, est.model_, fine, scale_bounds=(0.95 * good.scale,
                                                                   1.05 * good.scale), **kw)
     assert outside.scale >= shrunk.scale - 1e-9
+
+
+def test_rank_refined_orders_the_refined_modes_by_their_new_scores():
+    from posevote.refinement.local import rank_refined
+    from posevote.results import Hypothesis
+
+    def hyp(azimuth_deg, score):
+        return Hypothesis(azimuth=np.radians(azimuth_deg), elevation=0.0, inplane=0.0, scale=1.0,
+                          position=(0.0, 0.0), box=(0.0, 0.0, 1.0, 1.0), score=score,
+                          refined=False)
+
+    modes = [hyp(0, 0.9), hyp(90, 0.8), hyp(180, 0.7), hyp(270, 0.6)]
+    new_scores = {0: 0.5, 1: 0.95, 2: 0.6, 3: 0.65}
+    seen = []
+
+    def refine(k, h):
+        seen.append(k)
+        return replace(h, score=new_scores[k], refined=True)
+
+    ranked = rank_refined(modes, refine, 3)
+    assert seen == [0, 1, 2]
+    seen.clear()
+    assert [round(h.azimuth_deg) for h in ranked] == [90, 180, 0, 270]
+    assert [h.refined for h in ranked] == [True, True, True, False]
+    assert rank_refined(modes, refine, 1)[0].score == 0.5
+    everything = rank_refined(modes, refine, 10)
+    assert [round(h.azimuth_deg) for h in everything] == [90, 270, 180, 0]

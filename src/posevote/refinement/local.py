@@ -10,6 +10,7 @@ features, which is what puts the object's position within a pixel or two.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import replace
 
 import numpy as np
@@ -20,6 +21,35 @@ from posevote.inference.voting import TestMaps, gather_score
 from posevote.model.density import PoseModel
 from posevote.refinement.fitting import box_from_pose, neighbour_viewpoints, refine_mode
 from posevote.results import Hypothesis
+
+
+def rank_refined(hypotheses: Sequence[Hypothesis], refine: Callable[[int, Hypothesis], Hypothesis],
+                 n: int) -> list[Hypothesis]:
+    """Refine the first ``n`` hypotheses and rank them by their refined scores.
+
+    The search scores of different modes were read with the wide kernel at
+    grid poses; once refined, the narrow-kernel scores compare the modes at
+    their best poses, which in clutter more often puts the right one first
+    (docs/TUNING.md). Hypotheses beyond ``n`` follow, unrefined, in their
+    original order.
+
+    Parameters
+    ----------
+    hypotheses : sequence of Hypothesis
+        The modes, best first by search score.
+    refine : callable
+        ``refine(k, hypothesis)`` returns the refined ``k``-th hypothesis.
+    n : int
+        How many to refine.
+
+    Returns
+    -------
+    list of Hypothesis
+    """
+    n = min(n, len(hypotheses))
+    refined = [refine(k, h) for k, h in enumerate(hypotheses[:n])]
+    order = sorted(range(n), key=lambda k: -refined[k].score)
+    return [refined[k] for k in order] + list(hypotheses[n:])
 
 
 def polish_pose(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps, *,
