@@ -65,6 +65,9 @@ class PoseEstimator:
         over in-plane angle, scale and translation at each nearby viewpoint,
         fit the viewpoint to these maximised scores, and polish the result
         (beyond the paper; :func:`posevote.refinement.local.profile_refine`).
+    fit_radius_steps : float, default 2.5
+        Viewpoints within this many probe spacings of a mode take part in
+        its distribution fit (and in the local refinement's profile).
     refine_modes : int, default 1
         With ``local_refinement``, this many of the best modes are refined,
         and they are ranked again by their refined (narrow-kernel) scores;
@@ -195,6 +198,7 @@ class PoseEstimator:
         weights: bool = True,
         fitting: bool = True,
         local_refinement: bool = False,
+        fit_radius_steps: float = 2.5,
         refine_modes: int = 1,
         refine_scale_steps: float | None = 1.0,
         position_sigma: float = 3.0,
@@ -235,6 +239,7 @@ class PoseEstimator:
         self.weights = weights
         self.fitting = fitting
         self.local_refinement = local_refinement
+        self.fit_radius_steps = fit_radius_steps
         self.refine_modes = refine_modes
         self.refine_scale_steps = refine_scale_steps
         self.position_sigma = position_sigma
@@ -290,7 +295,7 @@ class PoseEstimator:
 
     def _validate_params(self) -> None:
         positive = ("position_sigma", "orientation_kappa", "inplane_step_deg", "edge_sigma",
-                    "edge_spacing")
+                    "edge_spacing", "fit_radius_steps")
         for name in positive:
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
@@ -634,7 +639,8 @@ class PoseEstimator:
         search_maps = self._search_maps(feats, shape)
         probes = self._probe(search_maps, None)
         modes = find_modes(probes, max_modes=self.max_modes)
-        hyps = [refine_mode(probes, v, fit=self.fitting) for v in modes]
+        hyps = [refine_mode(probes, v, fit=self.fitting, radius_steps=self.fit_radius_steps)
+                for v in modes]
         fine = self._maps(feats, shape, sigma=self.position_sigma) \
             if hyps and (self.local_refinement or self._recognizing()) else None
         if self.local_refinement and hyps and fine is not None:
@@ -673,7 +679,8 @@ class PoseEstimator:
                 _, scales = self.search_grid()
                 step = float(np.median(np.diff(np.log(scales)))) if len(scales) > 1 else 0.0
                 margin = self.refine_scale_steps * max(step, 0.05)
-            return profile_refine(probes, viewpoint, model, fine, scale_margin=margin, **kw)
+            return profile_refine(probes, viewpoint, model, fine, scale_margin=margin,
+                                  radius_steps=self.fit_radius_steps, **kw)
         return polish_pose(hyp, model, fine, **kw)
 
     def instance_scores(self, hypothesis: Hypothesis, features: EdgeFeatures,
@@ -723,7 +730,7 @@ class PoseEstimator:
         if not probes.score.any():
             return hyp
         v = int(np.argmax(probes.score.max(axis=(1, 2))))
-        refined = refine_mode(probes, v, fit=self.fitting)
+        refined = refine_mode(probes, v, fit=self.fitting, radius_steps=self.fit_radius_steps)
         if self.local_refinement:
             refined = self._local(probes, v, refined, model, fine)
         return refined
