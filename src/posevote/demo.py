@@ -14,6 +14,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -76,8 +77,22 @@ def render_turntable(azimuths: NDArray[np.float64], *, size: int = 128, elevatio
         pybullet.disconnect(client)
 
 
+#: The demo's estimator settings: the search of the cluttered COIL benchmark
+#: (wide in-plane and scale ranges in 7 scales, kernel in object units with
+#: chance correction and a saturated density) with the local refinement.
+#: Chosen on seeds 1-3 of the demo's own generator, never on seed 0, which
+#: the demo reports (``benchmarks/tune_demo.py``, docs/TUNING.md): 36% of 72
+#: views under 22.5 degrees and 36% within 5 px, against 24% and 15% with
+#: the former settings (5 scales, pixel kernel, clutter weighting).
+DEMO_PARAMS: dict[str, Any] = {"inplane_range_deg": (-30.0, 30.0), "scale_range": (0.7, 1.3),
+                               "scale_steps": 7, "object_kernel": True,
+                               "chance_correction": True, "density_cap": 0.5,
+                               "local_refinement": True}
+
+
 def run_demo(out_dir: str | Path, *, n_test: int = 24, seed: int = 0,
-             log: Callable[[str], None] = lambda s: None) -> dict:
+             log: Callable[[str], None] = lambda s: None,
+             params: dict[str, Any] | None = None) -> dict:
     """Train on rendered views, estimate cluttered test images, write overlays.
 
     Parameters
@@ -90,6 +105,8 @@ def run_demo(out_dir: str | Path, *, n_test: int = 24, seed: int = 0,
         Seed of the test azimuths, placements and backgrounds.
     log : callable, optional
         Receives progress lines (the CLI prints them).
+    params : dict, optional
+        Estimator settings on top of :data:`DEMO_PARAMS`.
 
     Returns
     -------
@@ -102,11 +119,7 @@ def run_demo(out_dir: str | Path, *, n_test: int = 24, seed: int = 0,
     out_dir = Path(out_dir)
     train = render_turntable(np.radians(np.arange(0, 360, 20)))
     log(f"rendered {len(train)} training views of pybullet's duck (one every 20 degrees)")
-    # The duck is nearly textureless and the backgrounds are dense texture:
-    # the case the clutter weighting and the profile refinement are for (both
-    # off by default, where cross-validation on COIL-100 did not favour them).
-    estimator = PoseEstimator(inplane_range_deg=(-30.0, 30.0), scale_range=(0.7, 1.3),
-                              scale_steps=5, clutter_sigma=4.0, local_refinement=True)
+    estimator = PoseEstimator(**{**DEMO_PARAMS, **(params or {})})
     estimator.fit([v.image for v in train], [v.azimuth for v in train],
                   boxes=[v.box for v in train], masks=[v.mask for v in train])
     log(f"trained: {estimator.model_.n_features} features")
