@@ -35,7 +35,12 @@ from posevote.model.modelfile import load_model, save_model
 from posevote.model.pruning import PruningPreset, prune_model, resolve_preset
 from posevote.model.weights import feature_weights
 from posevote.refinement.fitting import find_modes, refine_mode
-from posevote.refinement.local import polish_pose, profile_refine, rank_refined
+from posevote.refinement.local import (
+    polish_pose,
+    profile_refine,
+    rank_refined,
+    rescale_anchor,
+)
 from posevote.results import Hypothesis, PoseEstimate
 
 ImageLike = str | Path | NDArray
@@ -77,6 +82,16 @@ class PoseEstimator:
         neutral on the cluttered cross-validation and the epfl-single
         development set, and lost on the test protocols
         (``docs/TUNING.md``).
+    narrow_scale : bool, default True
+        With ``object_kernel``, ``local_refinement`` and ``fitting``, the
+        best mode's scale is first chosen again among the search's scales
+        with the narrow kernel in object units, above chance
+        (:func:`posevote.refinement.local.rescale_anchor`), and the local
+        refinement works in that scale's frame. The search's wide kernel
+        blurs the object's inner detail, so that under occlusion a model
+        shrunk onto the visible part scores as well as the right one.
+        Chosen on the clutter self-test and the cluttered COIL
+        cross-validation (``docs/TUNING.md``).
     refine_scale_steps : float or None, default 1.0
         The local refinement (with ``fitting``) keeps the scale within this
         many steps of the search's scale grid (at least 5% per step) of the
@@ -200,6 +215,7 @@ class PoseEstimator:
         local_refinement: bool = False,
         fit_radius_steps: float = 2.5,
         refine_modes: int = 1,
+        narrow_scale: bool = True,
         refine_scale_steps: float | None = 1.0,
         position_sigma: float = 3.0,
         orientation_kappa: float = 8.0,
@@ -241,6 +257,7 @@ class PoseEstimator:
         self.local_refinement = local_refinement
         self.fit_radius_steps = fit_radius_steps
         self.refine_modes = refine_modes
+        self.narrow_scale = narrow_scale
         self.refine_scale_steps = refine_scale_steps
         self.position_sigma = position_sigma
         self.orientation_kappa = orientation_kappa
@@ -647,8 +664,14 @@ class PoseEstimator:
             # The best modes are polished and ranked again by their narrow
             # scores; the others are reported as alternatives, and their
             # fitted pose is enough for that.
+            scale_maps = None
+            if self.narrow_scale and self.object_kernel and self.fitting:
+                scale_maps = [self._maps(*scaled_features(feats, shape, float(s)),
+                                         sigma=self.position_sigma, scale=float(s))
+                              for s in self.search_grid()[1]]
             hyps = rank_refined(hyps, lambda k, h: self._local(probes, modes[k], h, self.model_,
-                                                               fine), self.refine_modes)
+                                                               fine, scale_maps),
+                                self.refine_modes)
         instance, margin = "", float("nan")
         if self._recognizing() and hyps and fine is not None:
             per_mode = np.array([self.instance_scores(h, feats, fine)
@@ -668,8 +691,12 @@ class PoseEstimator:
         return bool(self.recognize_instance) and len(self._check_fitted().instance_names) > 1
 
     def _local(self, probes: ProbeSet, viewpoint: int, hyp: Hypothesis, model: PoseModel,
-               fine: TestMaps) -> Hypothesis:
-        """The local refinement of one mode (``local_refinement``)."""
+               fine: TestMaps, scale_maps: list[TestMaps] | None = None) -> Hypothesis:
+        """The local refinement of one mode (``local_refinement``).
+
+        With ``scale_maps`` (one narrow set per search scale, object units),
+        the mode's scale is first chosen again (``narrow_scale``).
+        """
         kw: dict[str, Any] = {"viewpoint_kappa": self.viewpoint_kappa_,
                               "use_weights": self.weights, "k1_cutoff": self.k1_cutoff}
         if self.fitting:
@@ -679,6 +706,13 @@ class PoseEstimator:
                 _, scales = self.search_grid()
                 step = float(np.median(np.diff(np.log(scales)))) if len(scales) > 1 else 0.0
                 margin = self.refine_scale_steps * max(step, 0.05)
+            chosen = None if scale_maps is None else rescale_anchor(probes, viewpoint, model,
+                                                                     scale_maps, **kw)
+            if chosen is not None and scale_maps is not None:
+                anchor, s = chosen
+                return profile_refine(probes, viewpoint, model, scale_maps[s],
+                                      scale_margin=margin, radius_steps=self.fit_radius_steps,
+                                      anchor=anchor, frame_scale=float(probes.scale[s]), **kw)
             return profile_refine(probes, viewpoint, model, fine, scale_margin=margin,
                                   radius_steps=self.fit_radius_steps, **kw)
         return polish_pose(hyp, model, fine, **kw)

@@ -117,3 +117,42 @@ def test_rank_refined_orders_the_refined_modes_by_their_new_scores():
     assert rank_refined(modes, refine, 1)[0].score == 0.5
     everything = rank_refined(modes, refine, 10)
     assert [round(h.azimuth_deg) for h in everything] == [90, 270, 180, 0]
+
+
+def test_in_frame_round_trip():
+    from posevote.refinement.local import in_frame
+    from posevote.results import Hypothesis
+
+    h = Hypothesis(azimuth=0.3, elevation=0.1, inplane=0.2, scale=0.8, position=(40.0, 60.0),
+                   box=(10.0, 20.0, 60.0, 80.0), score=0.5, refined=True)
+    framed = in_frame(h, 2.0)
+    assert framed.scale == 0.4 and framed.position == (20.0, 30.0)
+    assert framed.box == (5.0, 10.0, 30.0, 40.0) and framed.inplane == h.inplane
+    back = in_frame(framed, 0.5)
+    assert back.position == h.position and back.box == h.box
+    assert back.scale == pytest.approx(h.scale)
+
+
+def test_rescale_anchor_finds_the_scale_in_object_units(synthetic_training, draw):
+    from posevote import PoseEstimator
+    from posevote.data import object_box
+    from posevote.inference.voting import scaled_features
+    from posevote.refinement.local import rescale_anchor
+
+    images, az, boxes = synthetic_training
+    est = PoseEstimator(scale_range=(0.7, 1.3), scale_steps=5, object_kernel=True,
+                        chance_correction=True).fit(images, az, boxes=boxes)
+    img = draw(np.radians(40.0), scale=1.15, centre=(64.0, 64.0), size=160)
+    probes, feats = est.probe(img)
+    shape = img.shape[:2]
+    maps = [est._maps(*scaled_features(feats, shape, float(s)), sigma=est.position_sigma,
+                      scale=float(s)) for s in probes.scale]
+    kw = dict(viewpoint_kappa=est.viewpoint_kappa_, k1_cutoff=est.k1_cutoff)
+    mode = find_modes(probes)[0]
+    anchor, s = rescale_anchor(probes, mode, est.model_, maps, **kw)
+    assert anchor.scale == pytest.approx(1.15, rel=0.06)
+    assert abs(np.log(probes.scale[s] / 1.15)) <= 0.5 * np.log(1.3 / 0.7) / 4 + 1e-9
+    x, y, w, h = object_box(img)
+    assert anchor.position == pytest.approx((x + (w - 1) / 2, y + (h - 1) / 2), abs=3.0)
+    with pytest.raises(ValueError, match="one TestMaps per scale"):
+        rescale_anchor(probes, mode, est.model_, maps[:2], **kw)

@@ -113,6 +113,86 @@ def polish_pose(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps, *,
                    score=float(-result.fun))
 
 
+def at_viewpoint(probes: ProbeSet, viewpoint: int, pose: Hypothesis) -> Hypothesis:
+    """``pose``'s in-plane angle, scale and position at one of the probed viewpoints."""
+    return replace(pose, azimuth=float(probes.azimuth[viewpoint]),
+                   elevation=float(probes.elevation[viewpoint]), refined=False,
+                   box=box_from_pose(np.asarray(pose.position), probes.box[viewpoint] * pose.scale,
+                                     pose.inplane))
+
+
+def in_frame(pose: Hypothesis, factor: float) -> Hypothesis:
+    """``pose`` in an image whose coordinates are divided by ``factor`` (scale too)."""
+    x, y, w, h = pose.box
+    return replace(pose, scale=pose.scale / factor,
+                   position=(pose.position[0] / factor, pose.position[1] / factor),
+                   box=(x / factor, y / factor, w / factor, h / factor))
+
+
+def rescale_anchor(probes: ProbeSet, viewpoint: int, model: PoseModel,
+                   scale_maps: Sequence[TestMaps], *, viewpoint_kappa: float,
+                   use_weights: bool = True, k1_cutoff: float = 0.1
+                   ) -> tuple[Hypothesis, int] | None:
+    """Choose a mode's scale again with the narrow kernel in object units (beyond the paper).
+
+    At each scale of the grid, the viewpoint's best probe is polished
+    (:func:`polish_pose`, within half a grid step) on the test image divided
+    by that scale and tabulated with the narrow kernel, and scored above
+    that image's chance level. The search's wide kernel blurs the object's
+    inner detail, and under occlusion a smaller model fitted to the visible
+    part then scores as well as the right one; the narrow kernel in object
+    units tells them apart without favouring small scales (a kernel fixed
+    in pixels is relatively wider on a small model).
+
+    Parameters
+    ----------
+    probes : ProbeSet
+        The probes of the grid search.
+    viewpoint : int
+        The mode's best viewpoint.
+    model : PoseModel
+        Training pairs.
+    scale_maps : sequence of TestMaps
+        For every probed scale, the test features divided by it, tabulated
+        with the narrow kernel (:func:`posevote.inference.voting.scaled_features`).
+    viewpoint_kappa, use_weights, k1_cutoff
+        As in :func:`polish_pose`.
+
+    Returns
+    -------
+    (Hypothesis, int) or None
+        The polished pose in image coordinates and the index of its scale;
+        None if no scale has a probe with a positive score.
+    """
+    if len(scale_maps) != len(probes.scale):
+        raise ValueError(f"need one TestMaps per scale: {len(scale_maps)} for "
+                         f"{len(probes.scale)} scales")
+    half = 0.5 * float(np.median(np.diff(np.log(probes.scale)))) if len(probes.scale) > 1 else 0.05
+    best: tuple[float, Hypothesis, int] | None = None
+    for s, maps in enumerate(scale_maps):
+        a = int(np.argmax(probes.score[viewpoint, :, s]))
+        if probes.score[viewpoint, a, s] <= 0:
+            continue
+        factor = float(probes.scale[s])
+        position = probes.translation[viewpoint, a, s]
+        probe = Hypothesis(azimuth=float(probes.azimuth[viewpoint]),
+                           elevation=float(probes.elevation[viewpoint]),
+                           inplane=float(probes.inplane[a]), scale=factor,
+                           position=(float(position[0]), float(position[1])),
+                           box=box_from_pose(position, probes.box[viewpoint] * factor,
+                                             float(probes.inplane[a])),
+                           score=float(probes.score[viewpoint, a, s]), refined=False)
+        polished = polish_pose(in_frame(probe, factor), model, maps,
+                               viewpoint_kappa=viewpoint_kappa, use_weights=use_weights,
+                               k1_cutoff=k1_cutoff,
+                               scale_bounds=(float(np.exp(-half)), float(np.exp(half))))
+        chance = min(maps.chance, 0.99)
+        value = (polished.score - chance) / (1.0 - chance)
+        if best is None or value > best[0]:
+            best = (value, replace(in_frame(polished, 1.0 / factor), score=probe.score), s)
+    return None if best is None else (best[1], best[2])
+
+
 def start_near(probes: ProbeSet, viewpoint: int, anchor: Hypothesis) -> Hypothesis:
     """The best probe of a viewpoint that lies on the same object as an anchor pose.
 
@@ -143,9 +223,7 @@ def start_near(probes: ProbeSet, viewpoint: int, anchor: Hypothesis) -> Hypothes
     inside = np.all(offset <= half, axis=-1)
     score = np.where(inside, probes.score[viewpoint], -np.inf)
     if not np.isfinite(score).any():
-        return replace(anchor, azimuth=az, elevation=el, refined=False,
-                       box=box_from_pose(np.asarray(anchor.position),
-                                         probes.box[viewpoint] * anchor.scale, anchor.inplane))
+        return at_viewpoint(probes, viewpoint, anchor)
     a, s = np.unravel_index(int(np.argmax(score)), score.shape)
     position = probes.translation[viewpoint, a, s]
     alpha, scale = float(probes.inplane[a]), float(probes.scale[s])
@@ -157,7 +235,8 @@ def start_near(probes: ProbeSet, viewpoint: int, anchor: Hypothesis) -> Hypothes
 
 def profile_refine(probes: ProbeSet, viewpoint: int, model: PoseModel, maps: TestMaps, *,
                    viewpoint_kappa: float, use_weights: bool = True, k1_cutoff: float = 0.1,
-                   radius_steps: float = 2.5, scale_margin: float | None = None
+                   radius_steps: float = 2.5, scale_margin: float | None = None,
+                   anchor: Hypothesis | None = None, frame_scale: float = 1.0
                    ) -> Hypothesis:
     """Fit the viewpoint on the profile likelihood, then polish (beyond the paper).
 
@@ -186,21 +265,34 @@ def profile_refine(probes: ProbeSet, viewpoint: int, model: PoseModel, maps: Tes
         The narrow score is not corrected for chance, and in clutter it
         grows as the model shrinks onto dense edges; the search, whose
         score is, chose the scale.
+    anchor : Hypothesis, optional
+        The mode's pose (for instance from :func:`rescale_anchor`): the
+        mode's viewpoint starts there, and the other viewpoints' starts
+        (:func:`start_near`) have their scale brought into the band around
+        it. By default the viewpoint's best probe.
+    frame_scale : float, optional
+        ``maps`` tabulate the test image divided by this factor (the kernel
+        in object units at that scale); poses are converted in and out.
 
     Returns
     -------
     Hypothesis
     """
     views = neighbour_viewpoints(probes, viewpoint, radius_steps=radius_steps)
-    anchor = refine_mode(probes, viewpoint, fit=False)
-    bounds = None if scale_margin is None else (anchor.scale * float(np.exp(-scale_margin)),
-                                                anchor.scale * float(np.exp(scale_margin)))
+    given = anchor is not None
+    if anchor is None:
+        anchor = refine_mode(probes, viewpoint, fit=False)
+    centre = anchor.scale / frame_scale
+    bounds = None if scale_margin is None else (centre * float(np.exp(-scale_margin)),
+                                                centre * float(np.exp(scale_margin)))
     polished = []
     for v in views:
-        start = start_near(probes, int(v), anchor)
-        polished.append(polish_pose(start, model, maps, viewpoint_kappa=viewpoint_kappa,
-                                    use_weights=use_weights, k1_cutoff=k1_cutoff,
-                                    scale_bounds=bounds))
+        start = anchor if given and v == viewpoint else start_near(probes, int(v), anchor)
+        if given and bounds is not None:
+            start = replace(start, scale=float(np.clip(start.scale, *(frame_scale * np.array(bounds)))))
+        polished.append(polish_pose(in_frame(start, frame_scale), model, maps,
+                                    viewpoint_kappa=viewpoint_kappa, use_weights=use_weights,
+                                    k1_cutoff=k1_cutoff, scale_bounds=bounds))
     score = np.array([h.score for h in polished])
     profile = ProbeSet(azimuth=probes.azimuth[views], elevation=probes.elevation[views],
                        inplane=np.zeros(1), scale=np.ones(1), score=score[:, None, None],
@@ -209,8 +301,8 @@ def profile_refine(probes: ProbeSet, viewpoint: int, model: PoseModel, maps: Tes
     fitted = refine_mode(profile, best, radius_steps=radius_steps)
     seed = polished[best]
     if not fitted.refined:
-        return seed
+        return in_frame(seed, 1.0 / frame_scale)
     moved = replace(seed, azimuth=fitted.azimuth, elevation=fitted.elevation, refined=True)
     final = polish_pose(moved, model, maps, viewpoint_kappa=viewpoint_kappa,
                         use_weights=use_weights, k1_cutoff=k1_cutoff, scale_bounds=bounds)
-    return replace(final, refined=True)
+    return replace(in_frame(final, 1.0 / frame_scale), refined=True)
