@@ -113,6 +113,17 @@ def polish_pose(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps, *,
                    score=float(-result.fun))
 
 
+def probe_pose(probes: ProbeSet, viewpoint: int, inplane: int, scale: int) -> Hypothesis:
+    """The pose of one probe of the grid, with its score (unrefined)."""
+    position = probes.translation[viewpoint, inplane, scale]
+    alpha, factor = float(probes.inplane[inplane]), float(probes.scale[scale])
+    return Hypothesis(azimuth=float(probes.azimuth[viewpoint]),
+                      elevation=float(probes.elevation[viewpoint]), inplane=alpha, scale=factor,
+                      position=(float(position[0]), float(position[1])),
+                      box=box_from_pose(position, probes.box[viewpoint] * factor, alpha),
+                      score=float(probes.score[viewpoint, inplane, scale]), refined=False)
+
+
 def at_viewpoint(probes: ProbeSet, viewpoint: int, pose: Hypothesis) -> Hypothesis:
     """``pose``'s in-plane angle, scale and position at one of the probed viewpoints."""
     return replace(pose, azimuth=float(probes.azimuth[viewpoint]),
@@ -174,14 +185,7 @@ def rescale_anchor(probes: ProbeSet, viewpoint: int, model: PoseModel,
         if probes.score[viewpoint, a, s] <= 0:
             continue
         factor = float(probes.scale[s])
-        position = probes.translation[viewpoint, a, s]
-        probe = Hypothesis(azimuth=float(probes.azimuth[viewpoint]),
-                           elevation=float(probes.elevation[viewpoint]),
-                           inplane=float(probes.inplane[a]), scale=factor,
-                           position=(float(position[0]), float(position[1])),
-                           box=box_from_pose(position, probes.box[viewpoint] * factor,
-                                             float(probes.inplane[a])),
-                           score=float(probes.score[viewpoint, a, s]), refined=False)
+        probe = probe_pose(probes, viewpoint, a, s)
         polished = polish_pose(in_frame(probe, factor), model, maps,
                                viewpoint_kappa=viewpoint_kappa, use_weights=use_weights,
                                k1_cutoff=k1_cutoff,
@@ -214,7 +218,6 @@ def start_near(probes: ProbeSet, viewpoint: int, anchor: Hypothesis) -> Hypothes
         does, the anchor's in-plane angle, scale and position at this
         viewpoint.
     """
-    az, el = float(probes.azimuth[viewpoint]), float(probes.elevation[viewpoint])
     offset = np.abs(probes.translation[viewpoint] - np.asarray(anchor.position))  # (A, S, 2)
     cos, sin = np.abs(np.cos(probes.inplane)), np.abs(np.sin(probes.inplane))
     w, h = probes.box[viewpoint]
@@ -225,12 +228,7 @@ def start_near(probes: ProbeSet, viewpoint: int, anchor: Hypothesis) -> Hypothes
     if not np.isfinite(score).any():
         return at_viewpoint(probes, viewpoint, anchor)
     a, s = np.unravel_index(int(np.argmax(score)), score.shape)
-    position = probes.translation[viewpoint, a, s]
-    alpha, scale = float(probes.inplane[a]), float(probes.scale[s])
-    return Hypothesis(azimuth=az, elevation=el, inplane=alpha, scale=scale,
-                      position=(float(position[0]), float(position[1])),
-                      box=box_from_pose(position, probes.box[viewpoint] * scale, alpha),
-                      score=float(probes.score[viewpoint, a, s]), refined=False)
+    return probe_pose(probes, viewpoint, int(a), int(s))
 
 
 def profile_refine(probes: ProbeSet, viewpoint: int, model: PoseModel, maps: TestMaps, *,
