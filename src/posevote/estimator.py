@@ -661,9 +661,9 @@ class PoseEstimator:
         fine = self._maps(feats, shape, sigma=self.position_sigma) \
             if hyps and (self.local_refinement or self._recognizing()) else None
         if self.local_refinement and hyps and fine is not None:
-            # The best modes are polished and ranked again by their narrow
-            # scores; the others are reported as alternatives, and their
-            # fitted pose is enough for that.
+            # The best ``refine_modes`` modes (one by default) are polished
+            # and ranked again by their narrow scores; the others are
+            # reported as alternatives, and their fitted pose is enough.
             scale_maps = None
             if self.narrow_scale and self.object_kernel and self.fitting:
                 scale_maps = [self._maps(*scaled_features(feats, shape, float(s)),
@@ -706,9 +706,8 @@ class PoseEstimator:
                 _, scales = self.search_grid()
                 step = float(np.median(np.diff(np.log(scales)))) if len(scales) > 1 else 0.0
                 margin = self.refine_scale_steps * max(step, 0.05)
-            chosen = None if scale_maps is None else rescale_anchor(probes, viewpoint, model,
-                                                                     scale_maps, **kw)
-            if chosen is not None and scale_maps is not None:
+            if scale_maps is not None and (
+                    chosen := rescale_anchor(probes, viewpoint, model, scale_maps, **kw)):
                 anchor, s = chosen
                 return profile_refine(probes, viewpoint, model, scale_maps[s],
                                       scale_margin=margin, radius_steps=self.fit_radius_steps,

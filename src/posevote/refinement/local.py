@@ -29,9 +29,10 @@ def rank_refined(hypotheses: Sequence[Hypothesis], refine: Callable[[int, Hypoth
 
     The search scores of different modes were read with the wide kernel at
     grid poses; once refined, the narrow-kernel scores compare the modes at
-    their best poses, which in clutter more often puts the right one first
-    (docs/TUNING.md). Hypotheses beyond ``n`` follow, unrefined, in their
-    original order.
+    their best poses. That put the right mode first more often on training
+    views pasted on clutter, but less often between training views
+    (docs/TUNING.md), so the estimator refines one mode by default.
+    Hypotheses beyond ``n`` follow, unrefined, in their original order.
 
     Parameters
     ----------
