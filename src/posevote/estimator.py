@@ -34,7 +34,7 @@ from posevote.model.kernels import kappa_for_width
 from posevote.model.modelfile import load_model, save_model
 from posevote.model.pruning import PruningPreset, prune_model, resolve_preset
 from posevote.model.weights import feature_weights
-from posevote.refinement.fitting import find_modes, refine_mode
+from posevote.refinement.fitting import VIEW_SHAPE, find_modes, refine_mode
 from posevote.refinement.local import (
     polish_pose,
     profile_refine,
@@ -73,6 +73,11 @@ class PoseEstimator:
     fit_radius_steps : float, default 2.5
         Viewpoints within this many probe spacings of a mode take part in
         its distribution fit (and in the local refinement's profile).
+    fit_view_shape : float, default 0.6
+        Exponent of the viewpoint term of that fit: 1 is the paper's von
+        Mises-Fisher kernel, smaller values a sharper peak that matches the
+        probe scores' fall-off, so the fitted viewpoint is not pulled toward
+        the training views (:mod:`posevote.refinement.fitting`).
     refine_modes : int, default 1
         With ``local_refinement``, this many of the best modes are refined,
         and they are ranked again by their refined (narrow-kernel) scores;
@@ -214,6 +219,7 @@ class PoseEstimator:
         fitting: bool = True,
         local_refinement: bool = False,
         fit_radius_steps: float = 2.5,
+        fit_view_shape: float = VIEW_SHAPE,
         refine_modes: int = 1,
         narrow_scale: bool = True,
         refine_scale_steps: float | None = 1.0,
@@ -256,6 +262,7 @@ class PoseEstimator:
         self.fitting = fitting
         self.local_refinement = local_refinement
         self.fit_radius_steps = fit_radius_steps
+        self.fit_view_shape = fit_view_shape
         self.refine_modes = refine_modes
         self.narrow_scale = narrow_scale
         self.refine_scale_steps = refine_scale_steps
@@ -312,7 +319,7 @@ class PoseEstimator:
 
     def _validate_params(self) -> None:
         positive = ("position_sigma", "orientation_kappa", "inplane_step_deg", "edge_sigma",
-                    "edge_spacing", "fit_radius_steps")
+                    "edge_spacing", "fit_radius_steps", "fit_view_shape")
         for name in positive:
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
@@ -656,7 +663,8 @@ class PoseEstimator:
         search_maps = self._search_maps(feats, shape)
         probes = self._probe(search_maps, None)
         modes = find_modes(probes, max_modes=self.max_modes)
-        hyps = [refine_mode(probes, v, fit=self.fitting, radius_steps=self.fit_radius_steps)
+        hyps = [refine_mode(probes, v, fit=self.fitting, radius_steps=self.fit_radius_steps,
+                            view_shape=self.fit_view_shape)
                 for v in modes]
         fine = self._maps(feats, shape, sigma=self.position_sigma) \
             if hyps and (self.local_refinement or self._recognizing()) else None
@@ -711,9 +719,11 @@ class PoseEstimator:
                 anchor, s = chosen
                 return profile_refine(probes, viewpoint, model, scale_maps[s],
                                       scale_margin=margin, radius_steps=self.fit_radius_steps,
-                                      anchor=anchor, frame_scale=float(probes.scale[s]), **kw)
+                                      view_shape=self.fit_view_shape, anchor=anchor,
+                                      frame_scale=float(probes.scale[s]), **kw)
             return profile_refine(probes, viewpoint, model, fine, scale_margin=margin,
-                                  radius_steps=self.fit_radius_steps, **kw)
+                                  radius_steps=self.fit_radius_steps,
+                                  view_shape=self.fit_view_shape, **kw)
         return polish_pose(hyp, model, fine, **kw)
 
     def instance_scores(self, hypothesis: Hypothesis, features: EdgeFeatures,
@@ -763,7 +773,8 @@ class PoseEstimator:
         if not probes.score.any():
             return hyp
         v = int(np.argmax(probes.score.max(axis=(1, 2))))
-        refined = refine_mode(probes, v, fit=self.fitting, radius_steps=self.fit_radius_steps)
+        refined = refine_mode(probes, v, fit=self.fitting, radius_steps=self.fit_radius_steps,
+                            view_shape=self.fit_view_shape)
         if self.local_refinement:
             refined = self._local(probes, v, refined, model, fine)
         return refined

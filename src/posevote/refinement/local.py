@@ -19,7 +19,12 @@ from scipy.optimize import minimize
 from posevote.inference.search import ProbeSet, viewpoint_features
 from posevote.inference.voting import TestMaps, gather_score
 from posevote.model.density import PoseModel
-from posevote.refinement.fitting import box_from_pose, neighbour_viewpoints, refine_mode
+from posevote.refinement.fitting import (
+    VIEW_SHAPE,
+    box_from_pose,
+    neighbour_viewpoints,
+    refine_mode,
+)
 from posevote.results import Hypothesis
 
 
@@ -235,7 +240,8 @@ def start_near(probes: ProbeSet, viewpoint: int, anchor: Hypothesis) -> Hypothes
 def profile_refine(probes: ProbeSet, viewpoint: int, model: PoseModel, maps: TestMaps, *,
                    viewpoint_kappa: float, use_weights: bool = True, k1_cutoff: float = 0.1,
                    radius_steps: float = 2.5, scale_margin: float | None = None,
-                   anchor: Hypothesis | None = None, frame_scale: float = 1.0
+                   view_shape: float = VIEW_SHAPE, anchor: Hypothesis | None = None,
+                   frame_scale: float = 1.0
                    ) -> Hypothesis:
     """Fit the viewpoint on the profile likelihood, then polish (beyond the paper).
 
@@ -258,6 +264,8 @@ def profile_refine(probes: ProbeSet, viewpoint: int, model: PoseModel, maps: Tes
         As in :func:`polish_pose` (``maps`` with the narrow kernel).
     radius_steps : float, optional
         Viewpoints within this many probe spacings take part.
+    view_shape : float, optional
+        Exponent of the fitted viewpoint term (:func:`refine_mode`).
     scale_margin : float or None, optional
         Every polish keeps the scale within a factor ``exp(scale_margin)``
         of the mode's best probe (None: only the polish's own step bound).
@@ -297,7 +305,7 @@ def profile_refine(probes: ProbeSet, viewpoint: int, model: PoseModel, maps: Tes
                        inplane=np.zeros(1), scale=np.ones(1), score=score[:, None, None],
                        translation=np.zeros((len(views), 1, 1, 2)), box=probes.box[views])
     best = int(np.argmax(score))
-    fitted = refine_mode(profile, best, radius_steps=radius_steps)
+    fitted = refine_mode(profile, best, radius_steps=radius_steps, view_shape=view_shape)
     seed = polished[best]
     if not fitted.refined:
         return in_frame(seed, 1.0 / frame_scale)
