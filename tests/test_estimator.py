@@ -68,6 +68,7 @@ def test_unfitted_raises():
         ({"coherence_floor": 1.5}, "coherence_floor"),
         ({"density_cap": 0}, "density_cap must be positive"),
         ({"fit_radius_steps": 0.0}, "fit_radius_steps must be a positive number"),
+        ({"fit_view_shape": float("nan")}, "fit_view_shape must be a positive number"),
         ({"refine_modes": 0}, "refine_modes must be an integer >= 1"),
         ({"refine_scale_steps": 0.0}, "refine_scale_steps must be positive or None"),
         ({"refine_scale_steps": float("nan")}, "refine_scale_steps must be positive or None"),
