@@ -35,7 +35,6 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import contextlib
 import io
 import os
 import shlex
@@ -73,8 +72,7 @@ def run_object(obj: tuple[str, str, tuple[float, float, float]], params: dict, c
     """Train on every 20 degrees of one rendered object, estimate the other views."""
     name, mesh, euler = obj
     azimuths = np.radians(np.arange(0, 360, STEP_DEG))
-    with contextlib.redirect_stdout(io.StringIO()):  # pybullet's banner
-        views = render_turntable(azimuths, mesh=mesh, base_euler=euler, distance=None)
+    views = render_turntable(azimuths, mesh=mesh, base_euler=euler, distance=None)
     train = views[::TRAIN_EVERY]
     estimator = PoseEstimator(**params).fit(
         [v.image for v in train], [v.azimuth for v in train], boxes=[v.box for v in train],

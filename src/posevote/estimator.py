@@ -664,8 +664,7 @@ class PoseEstimator:
         probes = self._probe(search_maps, None)
         modes = find_modes(probes, max_modes=self.max_modes)
         hyps = [refine_mode(probes, v, fit=self.fitting, radius_steps=self.fit_radius_steps,
-                            view_shape=self.fit_view_shape)
-                for v in modes]
+                            view_shape=self.fit_view_shape) for v in modes]
         fine = self._maps(feats, shape, sigma=self.position_sigma) \
             if hyps and (self.local_refinement or self._recognizing()) else None
         if self.local_refinement and hyps and fine is not None:
@@ -774,7 +773,7 @@ class PoseEstimator:
             return hyp
         v = int(np.argmax(probes.score.max(axis=(1, 2))))
         refined = refine_mode(probes, v, fit=self.fitting, radius_steps=self.fit_radius_steps,
-                            view_shape=self.fit_view_shape)
+                              view_shape=self.fit_view_shape)
         if self.local_refinement:
             refined = self._local(probes, v, refined, model, fine)
         return refined

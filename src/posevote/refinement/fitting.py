@@ -1,9 +1,9 @@
 """Continuous refinement by local distribution fitting (Sec. II-B, Fig. 1 right).
 
 Around each main peak of the probes, an isotropic distribution is fitted to
-the probe scores by non-linear least squares: a von Mises-Fisher kernel on
-the viewing direction, a von Mises on the in-plane angle and a Gaussian on
-log-scale, times an amplitude, plus a floor::
+the probe scores by non-linear least squares: a peaked kernel on the viewing
+direction, a von Mises on the in-plane angle and a Gaussian on log-scale,
+times an amplitude, plus a floor::
 
     f(w) = b + A * exp(-k_v (1 - d(w1) . mu_v)^g + k_a (cos(alpha - mu_a) - 1)
                         - (log s - mu_s)^2 / (2 s_s^2))
@@ -15,11 +15,14 @@ edge features fall off more sharply than that (an edge moves linearly with
 the rotation), and a rounded kernel fitted to a sharp profile sampled at the
 training views pulls its mean toward the best sampled view; ``g = 0.5``
 decays about linearly with the angle (``1 - cos t = 2 sin^2(t / 2)``), a
-cusp. The default ``g`` is chosen on rendered turntables where that pull
-vanishes (``benchmarks/tune_rendered.py``, docs/TUNING.md). Dimensions with fewer than three distinct
-probed values in the neighbourhood are not fitted (the probe value is kept);
-widths are bounded to four grid steps, and an in-plane or scale mean that
-ends on its bound (a flat profile) is replaced by the best probe's value.
+cusp. The default ``g`` (:data:`VIEW_SHAPE`) was chosen on rendered
+turntables, where that pull vanishes (``benchmarks/tune_rendered.py``,
+docs/TUNING.md).
+
+Dimensions with fewer than three distinct probed values in the
+neighbourhood are not fitted (the probe value is kept); widths are bounded
+to four grid steps, and an in-plane or scale mean that ends on its bound (a
+flat profile) is replaced by the best probe's value.
 """
 
 from __future__ import annotations
