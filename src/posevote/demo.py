@@ -106,7 +106,8 @@ def render_turntable(azimuths: NDArray[np.float64], *, size: int = 128, elevatio
             _, _, rgba, _, seg = pybullet.getCameraImage(
                 size, size, view, proj, renderer=pybullet.ER_TINY_RENDERER, physicsClientId=client)
             rgb = np.reshape(np.asarray(rgba, dtype=np.uint8), (size, size, 4))[..., :3]
-            # the segmentation holds the body id in its low 24 bits (link index above)
+            # the body id is in the low 24 bits (pybullet puts a link index above them
+            # when asked to; masking is harmless otherwise)
             mask = (np.reshape(np.asarray(seg), (size, size)) & 0xFFFFFF) == body
             if not mask.any():
                 raise ValueError(f"{mesh}: the object is not in view at azimuth "
