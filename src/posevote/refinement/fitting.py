@@ -119,8 +119,10 @@ def _model(params: NDArray[np.float64], layout: dict, X: dict
     if layout["view"]:
         parts.append(("view", i))
         mu_az, mu_el, k_v = _view_params(params[i:i + n_view], fixed_el)
-        g = X["dir"] @ viewing_direction(mu_az, mu_el)
-        expo -= k_v * np.maximum(1.0 - g, 1e-12) ** shape
+        # distance to the mean direction, floored so its power's slope is finite
+        one_g = np.maximum(1.0 - X["dir"] @ viewing_direction(mu_az, mu_el), 1e-12)
+        powered = one_g ** shape
+        expo -= k_v * powered
         i += n_view
     if layout["inplane"]:
         parts.append(("inplane", i))
@@ -143,13 +145,12 @@ def _model(params: NDArray[np.float64], layout: dict, X: dict
             ca, sa = np.cos(-mu_az), np.sin(-mu_az)
             ce, se = np.cos(mu_el), np.sin(mu_el)
             d_az = np.array([ce * sa, -ce * ca, 0.0])
-            one_g = np.maximum(1.0 - X["dir"] @ viewing_direction(mu_az, mu_el), 1e-12)
-            slope = shape * one_g ** (shape - 1.0)
+            slope = shape * powered / one_g
             jac[:, j] = ae * k_v * slope * (X["dir"] @ d_az)
             if fixed_el is None:
                 d_el = np.array([-se * ca, -se * sa, ce])
                 jac[:, j + 1] = ae * k_v * slope * (X["dir"] @ d_el)
-            jac[:, j + n_view - 1] = -ae * one_g ** shape
+            jac[:, j + n_view - 1] = -ae * powered
         elif name == "inplane":
             mu_a, k_a = params[j:j + 2]
             jac[:, j] = ae * k_a * np.sin(X["inplane"] - mu_a)
