@@ -51,7 +51,7 @@ from _settings import parse_settings  # noqa: E402
 from posevote import PoseEstimator  # noqa: E402
 from posevote.data import read_coil  # noqa: E402
 from posevote.evaluation.metrics import summarize_errors  # noqa: E402
-from posevote.evaluation.synthetic import paste_on_clutter  # noqa: E402
+from posevote.evaluation.synthetic import CLUTTER_SEARCH, paste_on_clutter  # noqa: E402
 from posevote.geometry import angular_error  # noqa: E402
 
 OBJECTS = (1, 6, 8, 13, 15, 22, 23, 31, 33, 46, 54, 64, 76, 79, 91, 96)
@@ -62,25 +62,8 @@ ROWS = {
     "weights + fitting": {"weights": True, "fitting": True, "local_refinement": False},
     "+ local refinement": {"weights": True, "fitting": True, "local_refinement": True},
 }
-# The search covers the ranges the test images were made with. 7 scales (a
-# log-scale step of 0.10) were chosen on the clutter self-test (``--selftest
-# --clutter``, docs/TUNING.md): + local refinement 5.14 / 16.12 degrees,
-# 75.0% within 5 px, 12.5% over 30 degrees, against 5.23 / 18.91, 71.5%, 15.3%
-# with 5 scales (step 0.15, near the in-plane step of 0.17 rad), at 1.4 times
-# the time. In-plane steps of 5 degrees instead of 10 (a narrower search
-# kernel, since it is widened by half a step) were chosen on the same
-# self-test and checked on the cluttered CV: + local refinement 5.45 / 9.32
-# degrees, 89.2% within 5 px, 4.9% over 30 degrees, against 5.87 / 16.51,
-# 78.5%, 11.8%; cluttered CV 20.00 / 32.89, 29.2% over 30 against 20.00 /
-# 36.04, 33.3%; 1.8 times the time. 9 scales on top gained 4 views of 288
-# for another 1.3 times the time (not kept).
-# The scoring options for clutter were chosen by the cluttered cross-validation
-# (``--cv --clutter``, docs/TUNING.md): kernel in object units with per-scale
-# chance correction and the search density saturated at 0.5 gave median /
-# mean 23.9 / 37.2 degrees against 28.8 / 48.2 with the paper's density.
-CLUTTER_SEARCH = {"inplane_range_deg": (-30.0, 30.0), "inplane_step_deg": 5.0,
-                  "scale_range": (0.7, 1.3), "scale_steps": 7,
-                  "object_kernel": True, "chance_correction": True, "density_cap": 0.5}
+# The search settings for the pasted views: posevote.evaluation.synthetic.CLUTTER_SEARCH
+# (how they were chosen is written there).
 
 
 def splits(kind: str) -> list[tuple[list[int], list[int]]]:

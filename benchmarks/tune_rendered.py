@@ -14,9 +14,9 @@ other 54 views are estimated, exactly the COIL instance protocol.
 ``--clutter`` pastes every test view on clutter as the cluttered COIL
 benchmark does (random position, scale 0.7-1.3, in-plane rotation +-30
 degrees, 20% occluded; seeded per object) and searches with that
-benchmark's settings (``coil_instance.CLUTTER_SEARCH``): the precision of the
-cluttered protocol at its own offsets, which the clutter self-test (true
-poses at training views) cannot measure. It also prints the % of positions
+benchmark's settings (``posevote.evaluation.synthetic.CLUTTER_SEARCH``):
+the precision of the cluttered protocol at its own offsets, which the
+clutter self-test (true poses at training views) cannot measure. It also prints the % of positions
 within 5 px and of errors over 30 degrees.
 
 Printed per setting: median, mean and 90th percentile of the absolute
@@ -47,11 +47,10 @@ import numpy as np
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
 from _settings import parse_settings  # noqa: E402
-from coil_instance import CLUTTER_SEARCH  # noqa: E402
 
 from posevote import PoseEstimator  # noqa: E402
 from posevote.demo import render_turntable  # noqa: E402
-from posevote.evaluation.synthetic import paste_on_clutter  # noqa: E402
+from posevote.evaluation.synthetic import CLUTTER_SEARCH, paste_on_clutter  # noqa: E402
 
 #: (name, URDF in pybullet_data, rest orientation). The four named models and
 #: six of pybullet's random shapes, picked for having no rotational symmetry.

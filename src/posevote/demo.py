@@ -22,7 +22,7 @@ from numpy.typing import NDArray
 from posevote.estimator import PoseEstimator
 from posevote.evaluation.metrics import summarize_errors
 from posevote.evaluation.plots import draw_overlay, write_png
-from posevote.evaluation.synthetic import paste_on_clutter
+from posevote.evaluation.synthetic import CLUTTER_SEARCH, paste_on_clutter
 from posevote.geometry import angular_error
 
 
@@ -131,10 +131,7 @@ def render_turntable(azimuths: NDArray[np.float64], *, size: int = 128, elevatio
 #: the former settings (5 scales, pixel kernel, clutter weighting); 38% and
 #: 38% since the estimator's ``narrow_scale``; 44% and 42% with in-plane
 #: steps of 5 degrees instead of 10, as the cluttered COIL benchmark.
-DEMO_PARAMS: dict[str, Any] = {"inplane_range_deg": (-30.0, 30.0), "inplane_step_deg": 5.0,
-                               "scale_range": (0.7, 1.3), "scale_steps": 7, "object_kernel": True,
-                               "chance_correction": True, "density_cap": 0.5,
-                               "local_refinement": True}
+DEMO_PARAMS: dict[str, Any] = {**CLUTTER_SEARCH, "local_refinement": True}
 
 
 def run_demo(out_dir: str | Path, *, n_test: int = 24, seed: int = 0,

@@ -35,6 +35,19 @@ def test_paste_on_clutter_truth(draw):
     assert x <= u <= x + w and y <= v <= y + h
 
 
+def test_clutter_search_covers_the_pasting_ranges():
+    import inspect
+
+    from posevote import PoseEstimator
+    from posevote.evaluation.synthetic import CLUTTER_SEARCH
+
+    defaults = inspect.signature(paste_on_clutter).parameters
+    assert CLUTTER_SEARCH["scale_range"] == defaults["scale_range"].default
+    assert CLUTTER_SEARCH["inplane_range_deg"] == defaults["inplane_range_deg"].default
+    params = PoseEstimator(**CLUTTER_SEARCH).get_params()  # every key is a setting
+    assert params["inplane_step_deg"] == CLUTTER_SEARCH["inplane_step_deg"]
+
+
 def test_same_seed_same_image(draw):
     img = draw(0.3)
     box = np.array([30.0, 30.0, 60.0, 60.0])
