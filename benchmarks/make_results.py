@@ -53,6 +53,16 @@ PRUNING = """
 """
 
 OUTRO = """
+## epfl-10-10 (cars 1-10 train, 11-20 test)
+
+Cars 11-20 are a held-out test set that is not in `../shared`, so this
+protocol has not been run here. Its wall time is projected by timing the
+same training and estimation on stand-in frames of cars 1-10:
+[`results/time_epfl_10_10.md`](results/time_epfl_10_10.md)
+(`python benchmarks/time_epfl_10_10.py --markdown docs/results/time_epfl_10_10.md`).
+`posevote evaluate epfl-10-10` runs its main row by default (`--rows all`
+adds the two pruning rows).
+
 ## Defaults
 
 Chosen by cross-validation on training data only (COIL training views; EPFL

@@ -48,3 +48,11 @@ def test_epfl_single_on_development_cars(epfl_dir):
     assert "cars 2, 3" in dev.description
     with pytest.raises(ValueError, match="at least one car"):
         epfl_single(epfl_dir, cars=())
+
+
+def test_epfl_10_10_default_rows_exist():
+    # The protocol needs cars 11-20 to be built; its default rows must name real rows.
+    from posevote.evaluation.protocols import _EPFL_10_10_DEFAULT_ROWS, _EPFL_ROWS
+
+    assert set(_EPFL_10_10_DEFAULT_ROWS) <= {r.name for r in _EPFL_ROWS}
+    assert _EPFL_10_10_DEFAULT_ROWS[0] == _EPFL_ROWS[0].name

@@ -106,3 +106,15 @@ def test_records_of_other_code_are_redone(tiny_protocol, tmp_path):
     messages, done = [], []
     run_protocol(tiny_protocol, out, log=messages.append, progress=lambda d, t: done.append(d))
     assert done[0] == 0 and any("other posevote code" in m for m in messages)
+
+
+def test_default_rows_and_all(tiny_protocol, tmp_path):
+    from dataclasses import replace
+
+    two = replace(tiny_protocol, rows=(tiny_protocol.rows[0],
+                                       Row(name="no fitting", params={"fitting": False})),
+                  default_rows=("no fitting",))
+    summary = run_protocol(two, tmp_path / "default", log=lambda m: None)
+    assert [r["name"] for r in summary["rows"]] == ["no fitting"]
+    summary = run_protocol(two, tmp_path / "all", rows=["all"], log=lambda m: None)
+    assert [r["name"] for r in summary["rows"]] == ["weights + fitting", "no fitting"]

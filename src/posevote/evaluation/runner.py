@@ -237,7 +237,8 @@ def run_protocol(protocol: Protocol, out_dir: str | Path, *, jobs: int = 1, ever
         Test only every ``every``-th image of each split (1: all). A
         subsample is recorded as such in the summary.
     rows : sequence of str, optional
-        Only these rows (by name); default all.
+        Only these rows (by name; ``["all"]``: every row); default the
+        protocol's ``default_rows``, or all of them if it names none.
     progress : callable, optional
         Called as ``progress(done, total)`` after each test image.
     log : callable, optional
@@ -257,7 +258,9 @@ def run_protocol(protocol: Protocol, out_dir: str | Path, *, jobs: int = 1, ever
     run_start = time.perf_counter()
     out = Path(out_dir)
     chosen = list(protocol.rows)
-    if rows is not None:
+    if rows is None and protocol.default_rows:
+        rows = protocol.default_rows
+    if rows is not None and list(rows) != ["all"]:
         names = {r.name for r in protocol.rows}
         unknown = [r for r in rows if r not in names]
         if unknown:
