@@ -108,19 +108,27 @@ def run_split(obj: int, data: str, train_az: list[int], test_az: list[int], clut
     est.estimate(images[0])  # compile once before timing
     for row in rows:
         est.set_params(**{k: v for k, v in ROWS[row].items() if k not in params})
-        errs, secs, pos_err = [], [], []
+        errs, secs, pos_err, scale_err, inplane_err = [], [], [], [], []
         for k, (img, pose) in enumerate(zip(images, test.poses, strict=True)):
             r = est.estimate(img)
             secs.append(r.seconds)
             if r.best is None:
                 errs.append(np.pi / 2 if period == np.pi else np.pi)
                 pos_err.append(np.inf)
+                scale_err.append(np.inf)
+                inplane_err.append(np.inf)
                 continue
             errs.append(float(angular_error(r.best.azimuth, pose[0], period=period)))
             if truth_pos is not None:
                 pos_err.append(float(np.hypot(*(np.array(r.best.position) - truth_pos[k]))))
+                scale_err.append(float(np.log(r.best.scale / pasted[k].scale)))
+                inplane_err.append(float(np.degrees(angular_error(r.best.inplane,
+                                                                  pasted[k].inplane))))
         out[row] = {"errors_deg": np.degrees(errs).tolist(), "seconds": secs,
                     "position_error_px": pos_err}
+        if clutter:
+            out[row]["log_scale_error"] = scale_err
+            out[row]["inplane_error_deg"] = inplane_err
     return out
 
 

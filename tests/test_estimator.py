@@ -222,3 +222,20 @@ def test_local_refinement_in_object_units(synthetic_training, draw):
     assert best.inplane_deg == pytest.approx(-8.0, abs=3.0)
     x, y, w, h = object_box(img)
     assert best.position == pytest.approx((x + (w - 1) / 2, y + (h - 1) / 2), abs=2.5)
+
+
+def test_interpolated_alignment_keeps_the_azimuth(synthetic_training, draw):
+    from posevote.data import object_box
+
+    images, az, boxes = synthetic_training
+    est = PoseEstimator(local_refinement=True, inplane_range_deg=(-20, 20),
+                        scale_range=(0.8, 1.2)).fit(images, az, boxes=boxes)
+    truth = np.radians(70.0)  # halfway between the training views at 60 and 80 degrees
+    img = draw(truth, scale=1.1, inplane=np.radians(6.0), centre=(62.0, 66.0))
+    plain = est.estimate(img).best
+    between = est.set_params(interpolate_alignment=True).estimate(img).best
+    assert between.refined and between.azimuth == plain.azimuth
+    assert between.score > 0
+    x, y, w, h = object_box(img)
+    assert between.position == pytest.approx((x + (w - 1) / 2, y + (h - 1) / 2), abs=3.0)
+    assert between.inplane_deg == pytest.approx(6.0, abs=4.0)

@@ -156,3 +156,39 @@ def test_rescale_anchor_finds_the_scale_in_object_units(synthetic_training, draw
     assert anchor.position == pytest.approx((x + (w - 1) / 2, y + (h - 1) / 2), abs=3.0)
     with pytest.raises(ValueError, match="one TestMaps per scale"):
         rescale_anchor(probes, mode, est.model_, maps[:2], **kw)
+
+
+def test_interpolate_alignment_between_the_bracketing_views():
+    from posevote.refinement.local import interpolate_alignment
+    from posevote.results import Hypothesis
+
+    def pose(az_deg, inplane_deg, scale, u, v):
+        return Hypothesis(azimuth=np.radians(az_deg), elevation=0.0, inplane=np.radians(inplane_deg),
+                          scale=scale, position=(u, v), box=(0.0, 0.0, 1.0, 1.0), score=1.0,
+                          refined=False)
+
+    views = np.radians([340.0, 0.0, 20.0, 40.0])
+    aligned = [pose(340, 0, 1.0, 0, 0), pose(0, 350, 1.0, 10, 20), pose(20, 10, 4.0, 20, 40),
+               pose(40, 0, 1.0, 0, 0)]
+    # a quarter of the way from 0 to 20 degrees: across the wrap of the in-plane angle
+    alpha, scale, (u, v) = interpolate_alignment(np.radians(5.0), views, aligned)
+    assert np.degrees(alpha) == pytest.approx(-5.0)
+    assert scale == pytest.approx(np.sqrt(2.0))  # log-linear: 4 ** 0.25
+    assert (u, v) == pytest.approx((12.5, 25.0))
+    # across the azimuth wrap, between 340 and 0 degrees
+    _, _, (u, _) = interpolate_alignment(np.radians(350.0), views, aligned)
+    assert u == pytest.approx(5.0)
+    # outside the viewpoints: nothing to interpolate
+    assert interpolate_alignment(np.radians(90.0), views[1:3], aligned[1:3]) is None
+
+
+def test_profile_refine_interpolated_alignment_is_scored(scene):
+    est, probes, fine, centre = scene
+    modes = find_modes(probes)
+    kw = dict(viewpoint_kappa=est.viewpoint_kappa_, k1_cutoff=est.k1_cutoff)
+    hyp = profile_refine(probes, modes[0], est.model_, fine, interpolate=True, **kw)
+    assert hyp.refined and abs(hyp.azimuth_deg - 60.0) < 10.0
+    assert hyp.position == pytest.approx(centre, abs=3.0)
+    from posevote.refinement.local import score_pose
+
+    assert score_pose(hyp, est.model_, fine, **kw).score == pytest.approx(hyp.score)

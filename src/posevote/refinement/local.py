@@ -12,8 +12,10 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import replace
+from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 from scipy.optimize import minimize
 
 from posevote.inference.search import ProbeSet, viewpoint_features
@@ -117,6 +119,74 @@ def polish_pose(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps, *,
     return replace(hypothesis, inplane=float(alpha), scale=scale, position=(float(u), float(v)),
                    box=box_from_pose(np.array([u, v]), feats.box * scale, float(alpha)),
                    score=float(-result.fun))
+
+
+def score_pose(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps, *,
+               viewpoint_kappa: float, use_weights: bool = True, k1_cutoff: float = 0.1
+               ) -> Hypothesis:
+    """A pose with its exact narrow-kernel score p(w) and its box at its viewpoint.
+
+    Parameters
+    ----------
+    hypothesis : Hypothesis
+        The pose to score (kept as it is).
+    model, maps, viewpoint_kappa, use_weights, k1_cutoff
+        As in :func:`polish_pose`.
+
+    Returns
+    -------
+    Hypothesis
+    """
+    feats = viewpoint_features(model, hypothesis.azimuth, hypothesis.elevation,
+                               viewpoint_kappa=viewpoint_kappa, use_weights=use_weights,
+                               k1_cutoff=k1_cutoff)
+    u, v = hypothesis.position
+    score = gather_score(maps.density, feats.xy, feats.theta, feats.weight, hypothesis.inplane,
+                         hypothesis.scale, u, v) if feats.weight.sum() > 0 else 0.0
+    return replace(hypothesis, score=float(score),
+                   box=box_from_pose(np.array([u, v]), feats.box * hypothesis.scale,
+                                     hypothesis.inplane))
+
+
+def interpolate_alignment(azimuth: float, view_azimuth: NDArray[np.float64],
+                          aligned: Sequence[Hypothesis]
+                          ) -> tuple[float, float, tuple[float, float]] | None:
+    """In-plane angle, scale and position between the alignments of two viewpoints.
+
+    Beyond the paper. Between two training views no single view matches the image under a
+    similarity transform: each neighbour's best alignment leans its own way
+    (in-plane angle and position), and a polish of their blend leans toward
+    whichever has the stronger edges. Interpolating the two alignments
+    linearly in azimuth cancels much of that.
+
+    Parameters
+    ----------
+    azimuth : float
+        The fitted azimuth, radians.
+    view_azimuth : ndarray, shape (V,)
+        Azimuths of the aligned viewpoints (one elevation), radians.
+    aligned : sequence of Hypothesis
+        Each viewpoint's alignment (in-plane angle, scale, position).
+
+    Returns
+    -------
+    (float, float, (float, float)) or None
+        In-plane angle, scale and position, or None when ``azimuth`` does not
+        lie strictly between two of the viewpoints (within half a turn).
+    """
+    d = np.mod(np.asarray(view_azimuth, dtype=np.float64) - azimuth + np.pi, 2 * np.pi) - np.pi
+    before, after = np.flatnonzero(d <= 0), np.flatnonzero(d > 0)
+    if len(before) == 0 or len(after) == 0:
+        return None
+    a = int(before[np.argmax(d[before])])
+    b = int(after[np.argmin(d[after])])
+    t = float(-d[a] / (d[b] - d[a]))
+    pa, pb = aligned[a], aligned[b]
+    turn = float(np.mod(pb.inplane - pa.inplane + np.pi, 2 * np.pi) - np.pi)
+    scale = float(np.exp((1 - t) * np.log(pa.scale) + t * np.log(pb.scale)))
+    u, v = (1 - t) * np.asarray(pa.position) + t * np.asarray(pb.position)
+    alpha = float(np.mod(pa.inplane + t * turn + np.pi, 2 * np.pi) - np.pi)
+    return alpha, scale, (float(u), float(v))
 
 
 def probe_pose(probes: ProbeSet, viewpoint: int, inplane: int, scale: int) -> Hypothesis:
@@ -241,7 +311,7 @@ def profile_refine(probes: ProbeSet, viewpoint: int, model: PoseModel, maps: Tes
                    viewpoint_kappa: float, use_weights: bool = True, k1_cutoff: float = 0.1,
                    radius_steps: float = 2.5, scale_margin: float | None = None,
                    view_shape: float = VIEW_SHAPE, anchor: Hypothesis | None = None,
-                   frame_scale: float = 1.0
+                   frame_scale: float = 1.0, interpolate: bool = False
                    ) -> Hypothesis:
     """Fit the viewpoint on the profile likelihood, then polish (beyond the paper).
 
@@ -280,6 +350,11 @@ def profile_refine(probes: ProbeSet, viewpoint: int, model: PoseModel, maps: Tes
     frame_scale : float, optional
         ``maps`` tabulate the test image divided by this factor (the kernel
         in object units at that scale); poses are converted in and out.
+    interpolate : bool, optional
+        On a turntable, take the in-plane angle, scale and position at the
+        fitted azimuth from the polished alignments of the two viewpoints
+        on either side of it (:func:`interpolate_alignment`) instead of
+        polishing the blend of their features there.
 
     Returns
     -------
@@ -310,6 +385,14 @@ def profile_refine(probes: ProbeSet, viewpoint: int, model: PoseModel, maps: Tes
     if not fitted.refined:
         return in_frame(seed, 1.0 / frame_scale)
     moved = replace(seed, azimuth=fitted.azimuth, elevation=fitted.elevation, refined=True)
-    final = polish_pose(moved, model, maps, viewpoint_kappa=viewpoint_kappa,
-                        use_weights=use_weights, k1_cutoff=k1_cutoff, scale_bounds=bounds)
+    between = interpolate_alignment(fitted.azimuth, profile.azimuth, polished) \
+        if interpolate and profile.turntable else None
+    kw: dict[str, Any] = {"viewpoint_kappa": viewpoint_kappa, "use_weights": use_weights,
+                          "k1_cutoff": k1_cutoff}
+    if between is None:
+        final = polish_pose(moved, model, maps, scale_bounds=bounds, **kw)
+    else:
+        alpha, scale, position = between
+        final = score_pose(replace(moved, inplane=alpha, scale=scale, position=position), model,
+                           maps, **kw)
     return replace(in_frame(final, 1.0 / frame_scale), refined=True)
