@@ -199,10 +199,11 @@ _EPFL_ROWS = (
 
 # epfl-10-10 runs its main row unless asked for more (``--rows all``): the
 # issue gives the protocol 15 minutes with 2 processes, and
-# benchmarks/time_epfl_10_10.py projects 13.5 minutes for the main row and
-# 39.3 for all three (docs/results/time_epfl_10_10.md; an earlier run of the
-# same code: 14.3 and 39.7). The pruning rows' accuracy and kept fractions
-# are measured on epfl-cv.
+# benchmarks/time_epfl_10_10.py projects 13.1 minutes for the main row and
+# 37.4 for all three (docs/results/time_epfl_10_10.md; 17 s of it training,
+# since the pose-specificity weights gather their maxima in a dense table;
+# with the former sort, 52 s and 13.5 / 39.3 minutes). The pruning rows'
+# accuracy and kept fractions are measured on epfl-cv.
 _EPFL_10_10_DEFAULT_ROWS = ("weights + fitting",)
 
 _EPFL_PUBLISHED = """\

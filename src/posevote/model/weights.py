@@ -72,8 +72,13 @@ def feature_weights(model: PoseModel, *, position_sigma: float, orientation_kapp
 def _instance_weights(xy: NDArray[np.float64], theta: NDArray[np.float64],
                       view: NDArray[np.int64], directions: NDArray[np.float64], *,
                       position_sigma: float, orientation_kappa: float, viewpoint_kappa: float,
-                      max_pairs: int) -> NDArray[np.float64]:
-    """Eq. 4 over the views of one instance (``view`` indexes ``directions``)."""
+                      max_pairs: int, dense_cells: int = 20_000_000) -> NDArray[np.float64]:
+    """Eq. 4 over the views of one instance (``view`` indexes ``directions``).
+
+    With at most ``dense_cells`` (features x views), the strongest response
+    per feature and view is gathered in a dense table (several times faster
+    on pooled car sequences); otherwise by sorting the feature pairs.
+    """
     m, k_views = len(theta), len(directions)
     if m == 0:
         return np.zeros(0)
@@ -89,6 +94,15 @@ def _instance_weights(xy: NDArray[np.float64], theta: NDArray[np.float64],
     d2 = np.sum((xy[i] - xy[j]) ** 2, axis=1)
     response = position_kernel(d2, position_sigma) * orientation_kernel(
         theta[i] - theta[j], orientation_kappa)
+    if m * k_views <= dense_cells:
+        # psi~_k(x_i) for every feature and view at once: the strongest
+        # response among the features of view k (0 where none is near).
+        psi_all = np.zeros((m, k_views))
+        np.maximum.at(psi_all, (i, view[j]), response)
+        k1_views = viewpoint_kernel(directions[:, None, :], directions[None, :, :],
+                                    viewpoint_kappa)
+        ambiguity = np.einsum("ik,ik->i", psi_all, 1.0 - k1_views[view]) / k_views
+        return np.clip(1.0 - ambiguity, 0.0, 1.0)
     # psi~_k(x_i): strongest response among the features of view k.
     key = i * k_views + view[j]
     order = np.lexsort((-response, key))
