@@ -140,7 +140,10 @@ class PoseEstimator:
     scale_steps : int, default 3
         Number of scales searched (log-spaced). When widening
         ``scale_range``, keep the log-scale step near the in-plane step in
-        radians (0.7-1.3 with 10-degree steps: 5 scales).
+        radians (0.7-1.3 with 10-degree steps: 5 scales). In clutter a
+        finer grid pays: the cluttered COIL benchmark searches 7 scales
+        with 5-degree steps
+        (:data:`posevote.evaluation.synthetic.CLUTTER_SEARCH`).
     edge_sigma : float, default 1.0
         Canny smoothing, pixels.
     edge_thresholds : (float, float), default (0.02, 0.05)
