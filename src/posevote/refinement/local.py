@@ -153,8 +153,9 @@ def interpolate_alignment(azimuth: float, view_azimuth: NDArray[np.float64],
                           ) -> tuple[float, float, tuple[float, float]] | None:
     """In-plane angle, scale and position between the alignments of two viewpoints.
 
-    Beyond the paper. Between two training views no single view matches the image under a
-    similarity transform: each neighbour's best alignment leans its own way
+    Beyond the paper. Between two training views no single view matches
+    the image under a similarity transform: each neighbour's best alignment
+    leans its own way
     (in-plane angle and position), and a polish of their blend leans toward
     whichever has the stronger edges. Interpolating the two alignments
     linearly in azimuth cancels much of that.
@@ -171,8 +172,8 @@ def interpolate_alignment(azimuth: float, view_azimuth: NDArray[np.float64],
     Returns
     -------
     (float, float, (float, float)) or None
-        In-plane angle, scale and position, or None when ``azimuth`` does not
-        lie strictly between two of the viewpoints (within half a turn).
+        In-plane angle, scale and position, or None when all the viewpoints
+        lie on one side of ``azimuth`` (within half a turn).
     """
     d = np.mod(np.asarray(view_azimuth, dtype=np.float64) - azimuth + np.pi, 2 * np.pi) - np.pi
     before, after = np.flatnonzero(d <= 0), np.flatnonzero(d > 0)
