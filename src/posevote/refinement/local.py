@@ -155,10 +155,9 @@ def interpolate_alignment(azimuth: float, view_azimuth: NDArray[np.float64],
 
     Beyond the paper. Between two training views no single view matches
     the image under a similarity transform: each neighbour's best alignment
-    leans its own way
-    (in-plane angle and position), and a polish of their blend leans toward
-    whichever has the stronger edges. Interpolating the two alignments
-    linearly in azimuth cancels much of that.
+    leans its own way (in-plane angle and position), and a polish of their
+    blend leans toward whichever has the stronger edges. Interpolating the
+    two alignments linearly in azimuth cancels much of that.
 
     Parameters
     ----------
