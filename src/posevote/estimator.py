@@ -28,13 +28,19 @@ from posevote.features.edges import EdgeFeatures, box_mask, detect_edges
 from posevote.geometry import viewing_direction
 from posevote.inference.recognition import explained_fraction, recognition_margin
 from posevote.inference.search import ProbeSet, probe_poses, viewpoint_grid
-from posevote.inference.voting import TestMaps, prepare_test, scaled_features
+from posevote.inference.verification import (
+    box_descriptor,
+    descriptor_length,
+    verify_candidates,
+    window_shape,
+)
+from posevote.inference.voting import TestMaps, prepare_test, restrict_maps, scaled_features
 from posevote.model.density import PoseModel, build_model
 from posevote.model.kernels import kappa_for_width
 from posevote.model.modelfile import load_model, save_model
 from posevote.model.pruning import PruningPreset, prune_model, resolve_preset
 from posevote.model.weights import feature_weights
-from posevote.refinement.fitting import VIEW_SHAPE, find_modes, refine_mode
+from posevote.refinement.fitting import VIEW_SHAPE, find_modes, probe_spacing, refine_mode
 from posevote.refinement.local import (
     polish_pose,
     profile_refine,
@@ -44,6 +50,17 @@ from posevote.refinement.local import (
 from posevote.results import Hypothesis, PoseEstimate
 
 ImageLike = str | Path | NDArray
+
+
+def _view_descriptors(crops: Sequence[NDArray[np.float32]], window: tuple[int, int]
+                      ) -> NDArray[np.float32]:
+    """Appearance descriptor of each training view's box crop (zeros where it is too small)."""
+    out = np.zeros((len(crops), descriptor_length(window)), dtype=np.float32)
+    for i, crop in enumerate(crops):
+        d = box_descriptor(crop, (0, 0, crop.shape[1], crop.shape[0]), window)
+        if d is not None:
+            out[i] = d
+    return out
 
 
 class NotFittedError(RuntimeError):
@@ -222,6 +239,17 @@ class PoseEstimator:
         Instances are scored at this many of the best category modes (a
         front/back confusion of the category can be an instance's right
         pose); the instance is refined at the mode where it scored best.
+    verify_candidates : int, default 0
+        Verify this many of the search's best probes by the appearance of
+        their box (:mod:`posevote.inference.verification`; HOG descriptors
+        of the training views near each probe's viewpoint) and re-estimate
+        inside the box of the best-verified one, enlarged by
+        ``verify_margin``, near its viewpoint; 0: off (the paper's search).
+        For full cluttered frames of categories (beyond the paper; see
+        ``docs/TUNING.md``).
+    verify_margin : float, default 0.25
+        The re-estimation keeps the test edges within the verified box
+        grown by this fraction of its width and height on every side.
     max_modes : int, default 3
         Modes reported per image.
     min_score : float, default 0.0
@@ -272,6 +300,8 @@ class PoseEstimator:
         recognize_instance: bool = True,
         instance_margin: float = 1.05,
         recognition_modes: int = 2,
+        verify_candidates: int = 0,
+        verify_margin: float = 0.25,
         max_modes: int = 3,
         min_score: float = 0.0,
     ) -> None:
@@ -316,6 +346,8 @@ class PoseEstimator:
         self.recognize_instance = recognize_instance
         self.instance_margin = instance_margin
         self.recognition_modes = recognition_modes
+        self.verify_candidates = verify_candidates
+        self.verify_margin = verify_margin
         self.max_modes = max_modes
         self.min_score = min_score
 
@@ -377,6 +409,12 @@ class PoseEstimator:
             raise ValueError(f"contrast must be in [0, 1], got {self.contrast!r}")
         if not 0 <= self.k1_cutoff < 1:
             raise ValueError(f"k1_cutoff must be in [0, 1), got {self.k1_cutoff!r}")
+        if not (isinstance(self.verify_candidates, (int, np.integer))
+                and self.verify_candidates >= 0):
+            raise ValueError(f"verify_candidates must be an integer >= 0, "
+                             f"got {self.verify_candidates!r}")
+        if not (isinstance(self.verify_margin, (int, float)) and 0 <= self.verify_margin <= 2):
+            raise ValueError(f"verify_margin must be in [0, 2], got {self.verify_margin!r}")
         self._pruning()
         if not self.instance_margin >= 1:
             raise ValueError(f"instance_margin must be >= 1, got {self.instance_margin!r}")
@@ -462,6 +500,7 @@ class PoseEstimator:
             raise ValueError(f"instances must have {k} entries, got {len(names)}")
 
         feats, centres, sizes = [], np.zeros((k, 2)), np.zeros((k, 2))
+        crops: list[NDArray[np.float32]] = []
         for i, image in enumerate(images):
             label = str(image) if isinstance(image, (str, Path)) else f"images[{i}]"
             img = _load(image, name=label)
@@ -498,6 +537,9 @@ class PoseEstimator:
                 raise ValueError(f"{label}: no edges found on the object; check the box/mask "
                                  "or lower edge_thresholds")
             feats.append(f)
+            x0, y0 = max(int(round(x)), 0), max(int(round(y)), 0)
+            crops.append(img[y0:max(int(round(y + h)), y0 + 1),
+                             x0:max(int(round(x + w)), x0 + 1)].astype(np.float32))
             centres[i] = [x + (w - 1) / 2.0, y + (h - 1) / 2.0]
             sizes[i] = [w, h]
             if progress is not None:
@@ -515,6 +557,8 @@ class PoseEstimator:
                             box_sizes=sizes, instances=inst_index, instance_names=instance_names,
                             reference_size=reference, category=category)
         self.viewpoint_kappa_ = self._viewpoint_kappa(model)
+        self.descriptor_window_ = window_shape(sizes)
+        self.view_descriptors_ = _view_descriptors(crops, self.descriptor_window_)
         weights = feature_weights(model, position_sigma=self.position_sigma,
                                   orientation_kappa=self.orientation_kappa,
                                   viewpoint_kappa=self.viewpoint_kappa_)
@@ -585,9 +629,14 @@ class PoseEstimator:
                              + (r * d_log_s / 2.0) ** 2))
 
     def _features(self, image: ImageLike) -> tuple[EdgeFeatures, tuple[int, int]]:
+        return self._read(image)[:2]
+
+    def _read(self, image: ImageLike
+              ) -> tuple[EdgeFeatures, tuple[int, int], NDArray[np.float64]]:
+        """The test image's features, shape and grey pixels."""
         img = _load(image, name=str(image) if isinstance(image, (str, Path)) else "image")
         feats = self._edges(img, mask=None, max_points=self.max_test_features)
-        return feats, (int(img.shape[0]), int(img.shape[1]))
+        return feats, (int(img.shape[0]), int(img.shape[1])), img
 
     def _maps(self, feats: EdgeFeatures, shape: tuple[int, int], *, sigma: float,
               scale: float = 1.0, search: bool = False) -> TestMaps:
@@ -677,9 +726,13 @@ class PoseEstimator:
         start = time.perf_counter()
         self._check_fitted()
         self._validate_params()
-        feats, shape = self._features(image)
+        feats, shape, img = self._read(image)
         search_maps = self._search_maps(feats, shape)
         probes = self._probe(search_maps, None)
+        if self.verify_candidates and probes.score.any():
+            located = self._verify(probes, img, feats, search_maps)
+            if located is not None:
+                feats, search_maps, probes = located
         modes = find_modes(probes, max_modes=self.max_modes)
         hyps = [refine_mode(probes, v, fit=self.fitting, radius_steps=self.fit_radius_steps,
                             view_shape=self.fit_view_shape) for v in modes]
@@ -711,6 +764,50 @@ class PoseEstimator:
         return PoseEstimate(found=bool(kept), best=kept[0] if kept else None, modes=kept,
                             n_test_features=len(feats), seconds=time.perf_counter() - start,
                             instance=instance if kept else "", instance_margin=margin)
+
+    def _verify(self, probes: ProbeSet, image: NDArray[np.float64], feats: EdgeFeatures,
+                search_maps: TestMaps | list[TestMaps]
+                ) -> tuple[EdgeFeatures, TestMaps | list[TestMaps], ProbeSet] | None:
+        """Verify the best probes by appearance and search again in the winner's box.
+
+        Returns the test features inside the verified box (grown by
+        ``verify_margin``), the search maps restricted to it and the probes
+        near the verified viewpoint, or None when no candidate could be
+        verified.
+        """
+        descriptors = getattr(self, "view_descriptors_", None)
+        if descriptors is None:
+            raise ValueError("verify_candidates needs the training views' appearance "
+                             "descriptors, which this model lacks (written by an older "
+                             "posevote); retrain it")
+        model = self._check_fitted()
+        found = verify_candidates(probes, image, descriptors, model.view_azimuth,
+                                  model.view_elevation, window=self.descriptor_window_,
+                                  n_candidates=self.verify_candidates,
+                                  tolerance=probe_spacing(probes))
+        if found is None:
+            return None
+        (v, a, s), _ = found
+        size = probes.box[v] * probes.scale[s]
+        centre = probes.translation[v, a, s]
+        half = size * (0.5 + self.verify_margin)
+        keep = np.all(np.abs(feats.xy - centre) <= half, axis=1)
+        if not keep.any():
+            return None
+        if isinstance(search_maps, TestMaps):
+            maps: TestMaps | list[TestMaps] = restrict_maps(search_maps, centre - half,
+                                                            centre + half)
+        else:
+            maps = [restrict_maps(m, (centre - half) / f, (centre + half) / f)
+                    for m, f in zip(search_maps, probes.scale, strict=True)]
+        corner = centre - size / 2.0
+        near = Hypothesis(azimuth=float(probes.azimuth[v]), elevation=float(probes.elevation[v]),
+                          inplane=float(probes.inplane[a]), scale=float(probes.scale[s]),
+                          position=(float(centre[0]), float(centre[1])),
+                          box=(float(corner[0]), float(corner[1]), float(size[0]),
+                               float(size[1])),
+                          score=float(probes.score[v, a, s]), refined=False)
+        return feats.select(keep), maps, self._probe(maps, None, near=near)
 
     def _recognizing(self) -> bool:
         return bool(self.recognize_instance) and len(self._check_fitted().instance_names) > 1
@@ -805,8 +902,10 @@ class PoseEstimator:
         full = getattr(self, "full_model_", model)
         save_model(path, model, self.get_params(),
                    extra={"viewpoint_kappa": self.viewpoint_kappa_,
-                          "pruning": getattr(self, "pruning_", None)},
-                   full_model=None if full is model else full)
+                          "pruning": getattr(self, "pruning_", None),
+                          "descriptor_window": list(getattr(self, "descriptor_window_", ()))},
+                   full_model=None if full is model else full,
+                   descriptors=getattr(self, "view_descriptors_", None))
 
     @classmethod
     def load(cls, path: str | Path) -> PoseEstimator:
@@ -817,7 +916,7 @@ class PoseEstimator:
         FileNotFoundError, ValueError
             Missing, foreign, corrupt or too-new files (message names the file).
         """
-        model, params, extra, full = load_model(path)
+        model, params, extra, full, descriptors = load_model(path)
         est = cls()
         try:
             est.set_params(**params)
@@ -827,4 +926,11 @@ class PoseEstimator:
         est.full_model_ = model if full is None else full
         est.viewpoint_kappa_ = float(extra.get("viewpoint_kappa", est._viewpoint_kappa(model)))
         est.pruning_ = extra.get("pruning")
+        window = extra.get("descriptor_window")
+        if descriptors is not None and isinstance(window, list) and len(window) == 2:
+            est.descriptor_window_ = (int(window[0]), int(window[1]))
+            if descriptors.shape[1] != descriptor_length(est.descriptor_window_):
+                raise ValueError(f"{path}: corrupt model file (view_descriptor length "
+                                 f"{descriptors.shape[1]} does not fit window {window})")
+            est.view_descriptors_ = descriptors
         return est

@@ -7,7 +7,9 @@ names. ``allow_pickle`` is never enabled, so loading a file cannot run code.
 
 Version 2 adds the optional ``full_*`` arrays: the unpruned model of a
 pruned category model (for instance recognition and refinement). Version 1
-files are still read.
+files are still read. The optional ``view_descriptor`` array (one appearance
+descriptor per training view, for ``verify_candidates``) is an addition
+that version-2 readers ignore, so it keeps the version number.
 """
 
 from __future__ import annotations
@@ -30,8 +32,8 @@ _ARRAYS = (*_FEATURE_ARRAYS, "view_azimuth", "view_elevation", "view_box", "view
 
 
 def save_model(path: str | Path, model: PoseModel, params: dict[str, Any],
-               extra: dict[str, Any] | None = None, full_model: PoseModel | None = None
-               ) -> None:
+               extra: dict[str, Any] | None = None, full_model: PoseModel | None = None,
+               descriptors: np.ndarray | None = None) -> None:
     """Write a model file atomically.
 
     Parameters
@@ -46,6 +48,8 @@ def save_model(path: str | Path, model: PoseModel, params: dict[str, Any],
         Further JSON-serialisable facts to record (training statistics).
     full_model : PoseModel, optional
         The unpruned model, when ``model`` is pruned (same views).
+    descriptors : ndarray, shape (K, D), optional
+        Appearance descriptor of each training view.
     """
     header = {
         "format": FORMAT_NAME,
@@ -59,13 +63,16 @@ def save_model(path: str | Path, model: PoseModel, params: dict[str, Any],
     arrays = {name: getattr(model, name) for name in _ARRAYS}
     if full_model is not None:
         arrays.update({f"full_{name}": getattr(full_model, name) for name in _FEATURE_ARRAYS})
+    if descriptors is not None:
+        arrays["view_descriptor"] = np.asarray(descriptors, dtype=np.float32)
     arrays["header"] = np.frombuffer(json.dumps(header).encode("utf-8"), dtype=np.uint8)
     with atomic_open(path, "wb") as fh:
         np.savez_compressed(fh, **arrays)
 
 
 def load_model(path: str | Path
-               ) -> tuple[PoseModel, dict[str, Any], dict[str, Any], PoseModel | None]:
+               ) -> tuple[PoseModel, dict[str, Any], dict[str, Any], PoseModel | None,
+                          np.ndarray | None]:
     """Read a model file.
 
     Parameters
@@ -82,6 +89,8 @@ def load_model(path: str | Path
         Recorded training facts.
     full_model : PoseModel or None
         The unpruned model, if the file has one.
+    descriptors : ndarray of float32, shape (K, D), or None
+        The training views' appearance descriptors, if the file has them.
 
     Raises
     ------
@@ -111,6 +120,8 @@ def load_model(path: str | Path
             arrays = {name: data[name] for name in _ARRAYS}
             full = ({name: data[f"full_{name}"] for name in _FEATURE_ARRAYS}
                     if "full_xy" in data.files else None)
+            descriptors = (data["view_descriptor"].astype(np.float32)
+                           if "view_descriptor" in data.files else None)
     except ValueError as exc:
         if str(exc).startswith(str(path)):
             raise
@@ -123,7 +134,12 @@ def load_model(path: str | Path
     full_model = None
     if full is not None:
         full_model = _build(path, {**arrays, **full}, header)
-    return model, dict(header.get("params", {})), dict(header.get("extra", {})), full_model
+    if descriptors is not None and (descriptors.ndim != 2
+                                    or descriptors.shape[0] != model.n_views):
+        raise ValueError(f"{path}: corrupt model file (view_descriptor has shape "
+                         f"{descriptors.shape} for {model.n_views} views)")
+    return (model, dict(header.get("params", {})), dict(header.get("extra", {})), full_model,
+            descriptors)
 
 
 def _build(path: Path, arrays: dict[str, np.ndarray], header: dict[str, Any]) -> PoseModel:
