@@ -29,8 +29,10 @@ from posevote.geometry import viewing_direction
 from posevote.inference.recognition import explained_fraction, recognition_margin
 from posevote.inference.search import ProbeSet, probe_poses, viewpoint_grid
 from posevote.inference.verification import (
+    background_boxes,
     box_descriptor,
     descriptor_length,
+    train_objectness,
     verify_candidates,
     window_shape,
 )
@@ -250,6 +252,11 @@ class PoseEstimator:
     verify_margin : float, default 0.25
         The re-estimation keeps the test edges within the verified box
         grown by this fraction of its width and height on every side.
+    verify_shortlist : int, default 10
+        Of the verified candidates, only the ones that a linear classifier
+        of the descriptors (trained on the training boxes against random
+        boxes of the training images that miss the object) finds most
+        object-like are compared with the training views.
     max_modes : int, default 3
         Modes reported per image.
     min_score : float, default 0.0
@@ -302,6 +309,7 @@ class PoseEstimator:
         recognition_modes: int = 2,
         verify_candidates: int = 0,
         verify_margin: float = 0.25,
+        verify_shortlist: int = 10,
         max_modes: int = 3,
         min_score: float = 0.0,
     ) -> None:
@@ -348,6 +356,7 @@ class PoseEstimator:
         self.recognition_modes = recognition_modes
         self.verify_candidates = verify_candidates
         self.verify_margin = verify_margin
+        self.verify_shortlist = verify_shortlist
         self.max_modes = max_modes
         self.min_score = min_score
 
@@ -375,7 +384,7 @@ class PoseEstimator:
             if not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be a positive number, got {value!r}")
         for name in ("viewpoint_subdivisions", "scale_steps", "max_train_features", "max_modes",
-                     "vote_candidates", "recognition_modes", "refine_modes"):
+                     "vote_candidates", "recognition_modes", "refine_modes", "verify_shortlist"):
             value = getattr(self, name)
             if not (isinstance(value, (int, np.integer)) and value >= 1):
                 raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
@@ -501,6 +510,10 @@ class PoseEstimator:
 
         feats, centres, sizes = [], np.zeros((k, 2)), np.zeros((k, 2))
         crops: list[NDArray[np.float32]] = []
+        # Background boxes for the objectness classifier of the verification;
+        # drawn with a fixed seed, so the same training set gives the same model.
+        rng = np.random.default_rng(0)
+        backgrounds: list[NDArray[np.float32]] = []
         for i, image in enumerate(images):
             label = str(image) if isinstance(image, (str, Path)) else f"images[{i}]"
             img = _load(image, name=label)
@@ -540,6 +553,10 @@ class PoseEstimator:
             x0, y0 = max(int(round(x)), 0), max(int(round(y)), 0)
             crops.append(img[y0:max(int(round(y + h)), y0 + 1),
                              x0:max(int(round(x + w)), x0 + 1)].astype(np.float32))
+            for bx, by, bw, bh in background_boxes(img.shape, box, rng):
+                bx0, by0 = max(int(round(bx)), 0), max(int(round(by)), 0)
+                backgrounds.append(img[by0:max(int(round(by + bh)), by0 + 1),
+                                       bx0:max(int(round(bx + bw)), bx0 + 1)].astype(np.float32))
             centres[i] = [x + (w - 1) / 2.0, y + (h - 1) / 2.0]
             sizes[i] = [w, h]
             if progress is not None:
@@ -559,6 +576,9 @@ class PoseEstimator:
         self.viewpoint_kappa_ = self._viewpoint_kappa(model)
         self.descriptor_window_ = window_shape(sizes)
         self.view_descriptors_ = _view_descriptors(crops, self.descriptor_window_)
+        negatives = _view_descriptors(backgrounds, self.descriptor_window_)
+        self.objectness_ = train_objectness(self.view_descriptors_,
+                                            negatives[np.any(negatives != 0, axis=1)])
         weights = feature_weights(model, position_sigma=self.position_sigma,
                                   orientation_kappa=self.orientation_kappa,
                                   viewpoint_kappa=self.viewpoint_kappa_)
@@ -784,7 +804,9 @@ class PoseEstimator:
         found = verify_candidates(probes, image, descriptors, model.view_azimuth,
                                   model.view_elevation, window=self.descriptor_window_,
                                   n_candidates=self.verify_candidates,
-                                  tolerance=probe_spacing(probes))
+                                  tolerance=probe_spacing(probes),
+                                  objectness=getattr(self, "objectness_", None),
+                                  shortlist=self.verify_shortlist)
         if found is None:
             return None
         (v, a, s), _ = found
@@ -905,7 +927,8 @@ class PoseEstimator:
                           "pruning": getattr(self, "pruning_", None),
                           "descriptor_window": list(getattr(self, "descriptor_window_", ()))},
                    full_model=None if full is model else full,
-                   descriptors=getattr(self, "view_descriptors_", None))
+                   descriptors=getattr(self, "view_descriptors_", None),
+                   objectness=getattr(self, "objectness_", None))
 
     @classmethod
     def load(cls, path: str | Path) -> PoseEstimator:
@@ -916,7 +939,7 @@ class PoseEstimator:
         FileNotFoundError, ValueError
             Missing, foreign, corrupt or too-new files (message names the file).
         """
-        model, params, extra, full, descriptors = load_model(path)
+        model, params, extra, full, descriptors, objectness = load_model(path)
         est = cls()
         try:
             est.set_params(**params)
@@ -933,4 +956,8 @@ class PoseEstimator:
                 raise ValueError(f"{path}: corrupt model file (view_descriptor length "
                                  f"{descriptors.shape[1]} does not fit window {window})")
             est.view_descriptors_ = descriptors
+            if objectness is not None and objectness.shape != (descriptors.shape[1] + 1,):
+                raise ValueError(f"{path}: corrupt model file (objectness has shape "
+                                 f"{objectness.shape})")
+            est.objectness_ = objectness
         return est

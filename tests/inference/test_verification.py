@@ -7,8 +7,10 @@ import pytest
 
 from posevote.inference.search import ProbeSet
 from posevote.inference.verification import (
+    background_boxes,
     box_descriptor,
     descriptor_length,
+    train_objectness,
     verify_candidates,
     window_shape,
 )
@@ -61,6 +63,47 @@ def test_verification_prefers_the_box_that_looks_like_its_view(draw):
     assert found is not None and found[0] == (0, 0, 0)
 
 
+def test_the_short_list_limits_the_choice(draw):
+    az = np.radians(np.arange(0, 360, 20.0))
+    window = (48, 48)
+    train = np.array([box_descriptor(draw(a, size=96), (0, 0, 96, 96), window) for a in az])
+    scene = np.zeros((200, 300))
+    scene[50:146, 20:116] = draw(np.radians(40.0), size=96)
+    scene[50:146, 180:276] = np.random.default_rng(0).random((96, 96)) > 0.7
+    probes = _probes([(228, 98), (228, 98), (68, 98)], [0.9, 0.8, 0.5])
+    clutter = box_descriptor(scene, (180, 50, 96, 96), window)
+    # A classifier that finds the clutter most object-like: with a short
+    # list of one, the clutter wins; with all three, the object does.
+    likes_clutter = np.r_[clutter, 0.0].astype(np.float64)
+    kw = {"window": window, "n_candidates": 3, "tolerance": np.radians(10.0),
+          "objectness": likes_clutter}
+    assert verify_candidates(probes, scene, train, az, np.zeros(len(az)), shortlist=1,
+                             **kw)[0] == (0, 0, 0)
+    assert verify_candidates(probes, scene, train, az, np.zeros(len(az)), shortlist=3,
+                             **kw)[0] == (2, 0, 0)
+
+
+def test_background_boxes_miss_the_object_and_repeat_with_the_seed():
+    box = (100.0, 60.0, 120.0, 60.0)
+    a = background_boxes((250, 376), box, np.random.default_rng(3), attempts=50)
+    b = background_boxes((250, 376), box, np.random.default_rng(3), attempts=50)
+    assert a == b and len(a) > 10
+    for x, y, w, h in a:
+        iw = max(0.0, min(x + w, 220.0) - max(x, 100.0))
+        ih = max(0.0, min(y + h, 120.0) - max(y, 60.0))
+        assert iw * ih / (w * h + 120.0 * 60.0 - iw * ih) < 0.4
+
+
+def test_objectness_separates_object_from_background():
+    rng = np.random.default_rng(0)
+    pos = rng.normal(1.0, 0.3, (30, 8)).astype(np.float32)
+    neg = rng.normal(-1.0, 0.3, (60, 8)).astype(np.float32)
+    w = train_objectness(pos, neg)
+    assert w is not None and w.shape == (9,)
+    assert np.all(pos @ w[:-1] + w[-1] > 0) and np.all(neg @ w[:-1] + w[-1] < 0)
+    assert train_objectness(pos, neg[:5]) is None
+
+
 def test_no_candidate_inside_the_image_gives_none(draw):
     window = (48, 48)
     train = np.array([box_descriptor(draw(0.0, size=96), (0, 0, 96, 96), window)])
@@ -84,6 +127,10 @@ def test_estimator_verification_round_trip(fitted_estimator, draw, tmp_path):
     est.save(tmp_path / "m.npz")
     loaded = PoseEstimator.load(tmp_path / "m.npz")
     np.testing.assert_array_equal(loaded.view_descriptors_, est.view_descriptors_)
+    if est.objectness_ is None:
+        assert loaded.objectness_ is None
+    else:
+        np.testing.assert_array_equal(loaded.objectness_, est.objectness_)
     assert loaded.estimate(image).best == result.best
     del loaded.view_descriptors_
     with pytest.raises(ValueError, match="retrain"):

@@ -83,8 +83,8 @@ def test_pose_likelihood_peaks_at_the_true_translation():
 def test_model_file_round_trip(tmp_path):
     model = toy_model()
     save_model(tmp_path / "m.npz", model, {"position_sigma": 2.0}, extra={"k": 1})
-    loaded, params, extra, full, descriptors = load_model(tmp_path / "m.npz")
-    assert full is None and descriptors is None
+    loaded, params, extra, full, descriptors, objectness = load_model(tmp_path / "m.npz")
+    assert full is None and descriptors is None and objectness is None
     assert params == {"position_sigma": 2.0} and extra == {"k": 1}
     assert np.array_equal(loaded.xy, model.xy) and loaded.instance_names == ("toy",)
 

@@ -80,17 +80,18 @@ EPFL_PARAMS: dict[str, Any] = {
 # Chosen for the 15-minute budget of epfl-10-10.
 #
 # Appearance verification (``verify_candidates``, beyond the paper): the
-# search's 40 best probes are judged by the HOG descriptor of their box
-# against the training views near their viewpoint, and the pose is estimated
-# again inside the best-verified box. On the same sweep (every 8th test
-# frame, 149 frames, both folds): median / mean error 27.0 / 61.8 -> 16.6 /
-# 46.4 degrees, % under 45 59.7 -> 66.4, detected 65.8 -> 72.5%, 1.11 ->
-# 1.16 s per frame (script: benchmarks/tune_epfl.py, the settings above
-# with and without verify_candidates=40). On another selection (every 8th frame of each
-# car, 151 frames; scratch script) 57.0 -> 62.9% under 45, detected 62.9 ->
-# 74.8%; there, verifying 20 or 40 candidates, or searching again within
-# 1, 2 or 3 grid steps of the verified viewpoint, were within 2 frames of
-# each other.
+# search's 40 best probes are judged by the HOG descriptor of their box: the
+# 10 most object-like (``verify_shortlist``) by a linear classifier, then
+# the one nearest to a training view near its viewpoint, and the pose is
+# estimated again inside its box. On the same sweep (every 8th test frame,
+# 149 frames, both folds): median / mean error 27.0 / 61.8 -> 14.4 / 44.9
+# degrees, % under 45 59.7 -> 72.5, detected 65.8 -> 76.5%, 1.11 -> 1.17 s
+# per frame; without the short list 16.6 / 46.4, 66.4%, 72.5% (script:
+# benchmarks/tune_epfl.py, the settings above with verify_candidates=40, and
+# verify_shortlist=40 for no short list). On another selection (every 8th
+# frame of each car, 151 frames; scratch analyses, docs/TUNING.md) the
+# choices between 20 and 40 candidates, 1 to 3 grid steps searched again,
+# and short lists of 5 to 20 were all within a few frames of each other.
 EPFL_CATEGORY_PARAMS: dict[str, Any] = {**EPFL_PARAMS, "position_sigma": 6.0, "density_cap": 0.5,
                                         "max_search_features": 1000, "verify_candidates": 40}
 

@@ -12,9 +12,17 @@ viewpoint, and the candidate whose crop is nearest to one of them wins.
 Unlike the edge votes, the descriptor also sees where edges are *missing*
 and the shading inside the box, which tells a car's front from its back.
 
-Training views store their descriptor (:func:`view_descriptors`); the test
-side is :func:`verify_candidates`. The estimator then re-estimates inside
-the winning box (``PoseEstimator(verify_candidates=N)``).
+Nearness to a training view is judged among the candidates that look most
+like the object at all: a linear classifier of the descriptors (scikit-learn's
+:class:`~sklearn.svm.LinearSVC`), trained on the training boxes against
+boxes of the training images that miss the object (:func:`background_boxes`,
+:func:`train_objectness`), short-lists them first. Without the short list
+the nearest descriptor often belonged to a part of the object or to a patch
+of background that happens to resemble some view.
+
+Training views store their descriptor and the classifier; the test side is
+:func:`verify_candidates`. The estimator then re-estimates inside the
+winning box (``PoseEstimator(verify_candidates=N)``).
 """
 
 from __future__ import annotations
@@ -25,6 +33,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 from skimage.feature import hog
+from sklearn.svm import LinearSVC
 
 from posevote.geometry import viewing_direction
 from posevote.inference.search import ProbeSet
@@ -80,10 +89,60 @@ def descriptor_length(window: tuple[int, int]) -> int:
     return blocks_y * blocks_x * 4 * 9
 
 
+def background_boxes(shape: tuple[int, int], box: Sequence[float], rng: np.random.Generator,
+                     *, attempts: int = 5, max_overlap: float = 0.4) -> list[tuple[float, ...]]:
+    """Random boxes of an image that miss its object (negatives for :func:`train_objectness`).
+
+    Each attempt draws a box of 0.4 to 1.2 times the object box's size (its
+    aspect changed by up to a factor 1.35 either way) anywhere in the image,
+    and keeps it if its intersection over union with the object box is below
+    ``max_overlap``: parts of the object count as background.
+    """
+    h_img, w_img = shape
+    x0, y0, w0, h0 = (float(b) for b in box)
+    out: list[tuple[float, ...]] = []
+    for _ in range(attempts):
+        size = np.exp(rng.uniform(np.log(0.4), np.log(1.2)))
+        w = min(w0 * size * np.exp(rng.uniform(-0.3, 0.3)), 0.95 * w_img)
+        h = min(h0 * size, 0.95 * h_img)
+        x = rng.uniform(-0.05 * w, w_img - 0.95 * w)
+        y = rng.uniform(-0.05 * h, h_img - 0.95 * h)
+        iw = max(0.0, min(x + w, x0 + w0) - max(x, x0))
+        ih = max(0.0, min(y + h, y0 + h0) - max(y, y0))
+        inter = iw * ih
+        if inter / (w * h + w0 * h0 - inter) < max_overlap:
+            out.append((x, y, w, h))
+    return out
+
+
+def train_objectness(positives: NDArray[np.float32], negatives: NDArray[np.float32]
+                     ) -> NDArray[np.float64] | None:
+    """Linear classifier of descriptors, object against background.
+
+    Parameters
+    ----------
+    positives, negatives : ndarray, shape (n, D)
+        Descriptors of object boxes and of background boxes.
+
+    Returns
+    -------
+    ndarray, shape (D + 1,), or None
+        Weights and bias (score ``d @ w[:-1] + w[-1]``, positive for the
+        object); None with fewer than 10 negatives or 2 positives.
+    """
+    if len(negatives) < 10 or len(positives) < 2:
+        return None
+    x = np.vstack([positives, negatives])
+    y = np.r_[np.ones(len(positives)), np.zeros(len(negatives))]
+    clf = LinearSVC(C=0.01, class_weight="balanced", random_state=0).fit(x, y)
+    return np.r_[clf.coef_[0], clf.intercept_[0]].astype(np.float64)
+
+
 def verify_candidates(probes: ProbeSet, image: NDArray[np.float64],
                       descriptors: NDArray[np.float32], view_azimuth: NDArray[np.float64],
                       view_elevation: NDArray[np.float64], *, window: tuple[int, int],
-                      n_candidates: int, tolerance: float
+                      n_candidates: int, tolerance: float,
+                      objectness: NDArray[np.float64] | None = None, shortlist: int = 10
                       ) -> tuple[tuple[int, int, int], float] | None:
     """The search candidate whose crop looks most like a training view near its viewpoint.
 
@@ -104,6 +163,11 @@ def verify_candidates(probes: ProbeSet, image: NDArray[np.float64],
     tolerance : float
         A candidate is compared with the training views within this angle of
         its viewpoint, radians.
+    objectness : ndarray, shape (D + 1,), optional
+        Classifier of :func:`train_objectness`; with it, only the
+        ``shortlist`` candidates it scores highest are compared.
+    shortlist : int, optional
+        Size of the short list.
 
     Returns
     -------
@@ -115,8 +179,7 @@ def verify_candidates(probes: ProbeSet, image: NDArray[np.float64],
     order = np.argsort(-probes.score, axis=None, kind="stable")[:n_candidates]
     train_dirs = viewing_direction(view_azimuth, view_elevation)
     cos_tol = np.cos(tolerance)
-    train_sq = np.einsum("ij,ij->i", descriptors, descriptors)
-    best: tuple[tuple[int, int, int], float] | None = None
+    found: list[tuple[tuple[int, int, int], NDArray[np.bool_], NDArray[np.float32]]] = []
     for flat in order:
         v, a, s = (int(i) for i in np.unravel_index(flat, probes.score.shape))
         if probes.score[v, a, s] <= 0:
@@ -128,10 +191,18 @@ def verify_candidates(probes: ProbeSet, image: NDArray[np.float64],
         centre = probes.translation[v, a, s]
         d = box_descriptor(image, (centre[0] - size[0] / 2, centre[1] - size[1] / 2,
                                    size[0], size[1]), window)
-        if d is None:
-            continue
+        if d is not None:
+            found.append(((v, a, s), near, d))
+    if not found:
+        return None
+    if objectness is not None and len(found) > shortlist:
+        looks = np.array([float(d @ objectness[:-1]) + objectness[-1] for _, _, d in found])
+        found = [found[i] for i in np.sort(np.argsort(-looks, kind="stable")[:shortlist])]
+    train_sq = np.einsum("ij,ij->i", descriptors, descriptors)
+    best: tuple[tuple[int, int, int], float] | None = None
+    for index, near, d in found:
         sq = train_sq[near] + float(d @ d) - 2.0 * (descriptors[near] @ d)
         dist = float(np.sqrt(max(float(sq.min()), 0.0)))
         if best is None or dist < best[1]:
-            best = ((v, a, s), dist)
+            best = (index, dist)
     return best

@@ -8,8 +8,9 @@ names. ``allow_pickle`` is never enabled, so loading a file cannot run code.
 Version 2 adds the optional ``full_*`` arrays: the unpruned model of a
 pruned category model (for instance recognition and refinement). Version 1
 files are still read. The optional ``view_descriptor`` array (one appearance
-descriptor per training view, for ``verify_candidates``) is an addition
-that version-2 readers ignore, so it keeps the version number.
+descriptor per training view, for ``verify_candidates``) and ``objectness``
+array (the verification's classifier) are additions that version-2 readers
+ignore, so they keep the version number.
 """
 
 from __future__ import annotations
@@ -33,7 +34,8 @@ _ARRAYS = (*_FEATURE_ARRAYS, "view_azimuth", "view_elevation", "view_box", "view
 
 def save_model(path: str | Path, model: PoseModel, params: dict[str, Any],
                extra: dict[str, Any] | None = None, full_model: PoseModel | None = None,
-               descriptors: np.ndarray | None = None) -> None:
+               descriptors: np.ndarray | None = None, objectness: np.ndarray | None = None
+               ) -> None:
     """Write a model file atomically.
 
     Parameters
@@ -50,6 +52,8 @@ def save_model(path: str | Path, model: PoseModel, params: dict[str, Any],
         The unpruned model, when ``model`` is pruned (same views).
     descriptors : ndarray, shape (K, D), optional
         Appearance descriptor of each training view.
+    objectness : ndarray, shape (D + 1,), optional
+        The verification's linear object/background classifier.
     """
     header = {
         "format": FORMAT_NAME,
@@ -65,6 +69,8 @@ def save_model(path: str | Path, model: PoseModel, params: dict[str, Any],
         arrays.update({f"full_{name}": getattr(full_model, name) for name in _FEATURE_ARRAYS})
     if descriptors is not None:
         arrays["view_descriptor"] = np.asarray(descriptors, dtype=np.float32)
+    if objectness is not None:
+        arrays["objectness"] = np.asarray(objectness, dtype=np.float64)
     arrays["header"] = np.frombuffer(json.dumps(header).encode("utf-8"), dtype=np.uint8)
     with atomic_open(path, "wb") as fh:
         np.savez_compressed(fh, **arrays)
@@ -72,7 +78,7 @@ def save_model(path: str | Path, model: PoseModel, params: dict[str, Any],
 
 def load_model(path: str | Path
                ) -> tuple[PoseModel, dict[str, Any], dict[str, Any], PoseModel | None,
-                          np.ndarray | None]:
+                          np.ndarray | None, np.ndarray | None]:
     """Read a model file.
 
     Parameters
@@ -91,6 +97,8 @@ def load_model(path: str | Path
         The unpruned model, if the file has one.
     descriptors : ndarray of float32, shape (K, D), or None
         The training views' appearance descriptors, if the file has them.
+    objectness : ndarray, shape (D + 1,), or None
+        The verification's object/background classifier, if the file has it.
 
     Raises
     ------
@@ -122,6 +130,8 @@ def load_model(path: str | Path
                     if "full_xy" in data.files else None)
             descriptors = (data["view_descriptor"].astype(np.float32)
                            if "view_descriptor" in data.files else None)
+            objectness = (data["objectness"].astype(np.float64)
+                          if "objectness" in data.files else None)
     except ValueError as exc:
         if str(exc).startswith(str(path)):
             raise
@@ -139,7 +149,7 @@ def load_model(path: str | Path
         raise ValueError(f"{path}: corrupt model file (view_descriptor has shape "
                          f"{descriptors.shape} for {model.n_views} views)")
     return (model, dict(header.get("params", {})), dict(header.get("extra", {})), full_model,
-            descriptors)
+            descriptors, objectness)
 
 
 def _build(path: Path, arrays: dict[str, np.ndarray], header: dict[str, Any]) -> PoseModel:
