@@ -213,11 +213,10 @@ _EPFL_ROWS = (
 
 # epfl-10-10 runs its main row unless asked for more (``--rows all``): the
 # issue gives the protocol 15 minutes with 2 processes, and
-# benchmarks/time_epfl_10_10.py projects 12.8 minutes for the main row and
-# 36.5 for all three with the appearance verification (docs/results/
-# time_epfl_10_10.md; 13.1 / 37.4 before it; 19 s of it training, since
-# the pose-specificity weights gather their maxima in a dense table; with
-# the former sort, 52 s and 13.5 / 39.3 minutes). The pruning rows'
+# benchmarks/time_epfl_10_10.py projects 13.5 minutes for the main row and
+# 38.6 for all three with the appearance verification and its short list
+# (docs/results/time_epfl_10_10.md; 13.1 / 37.4 before it; 26 s of it
+# training, 7 s of which the verification's descriptors and classifier). The pruning rows'
 # accuracy and kept fractions are measured on epfl-cv.
 _EPFL_10_10_DEFAULT_ROWS = ("weights + fitting",)
 
