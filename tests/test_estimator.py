@@ -79,6 +79,9 @@ def test_unfitted_raises():
         ({"instance_margin": 0.5}, "instance_margin must be >= 1"),
         ({"max_search_features": 0}, "max_search_features must be an integer >= 1 or None"),
         ({"max_voters": 2.5}, "max_voters must be an integer >= 1 or None"),
+        ({"verify_candidates": -1}, "verify_candidates must be an integer >= 0"),
+        ({"verify_margin": 5.0}, "verify_margin must be in"),
+        ({"verify_shortlist": 0}, "verify_shortlist must be an integer >= 1"),
     ],
 )
 def test_bad_parameters(synthetic_training, kwargs, message):
@@ -117,6 +120,28 @@ def test_masks_and_instances(synthetic_training):
     est = PoseEstimator().fit(images, az, masks=masks, instances=["a"] * 9 + ["b"] * 9)
     assert est.model_.instance_names == ("a", "b")
     assert est.model_.n_views == 18
+
+
+def test_appearance_descriptors_from_boxes_or_masks_agree(synthetic_training):
+    # With every box given, the descriptors are computed image by image; with
+    # boxes from masks, after all of them are known: the same boxes give the
+    # same descriptors and classifier.
+    images, az, boxes = synthetic_training
+    masks = []
+    for x, y, w, h in boxes:
+        m = np.zeros(images[0].shape, bool)
+        m[int(y):int(y + h), int(x):int(x + w)] = True
+        masks.append(m)
+    mask_boxes = np.array([[np.nonzero(m)[1].min(), np.nonzero(m)[0].min(),
+                            np.ptp(np.nonzero(m)[1]) + 1, np.ptp(np.nonzero(m)[0]) + 1]
+                           for m in masks], dtype=float)
+    a = PoseEstimator().fit(images, az, boxes=mask_boxes)
+    b = PoseEstimator().fit(images, az, masks=masks)
+    assert a.descriptor_window_ == b.descriptor_window_
+    np.testing.assert_array_equal(a.view_descriptors_, b.view_descriptors_)
+    assert (a.objectness_ is None) == (b.objectness_ is None)
+    if a.objectness_ is not None:
+        np.testing.assert_allclose(a.objectness_, b.objectness_)
 
 
 def test_weights_and_fitting_switch_off(synthetic_training, draw):

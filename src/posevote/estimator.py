@@ -54,15 +54,54 @@ from posevote.results import Hypothesis, PoseEstimate
 ImageLike = str | Path | NDArray
 
 
-def _view_descriptors(crops: Sequence[NDArray[np.float32]], window: tuple[int, int]
-                      ) -> NDArray[np.float32]:
-    """Appearance descriptor of each training view's box crop (zeros where it is too small)."""
-    out = np.zeros((len(crops), descriptor_length(window)), dtype=np.float32)
-    for i, crop in enumerate(crops):
-        d = box_descriptor(crop, (0, 0, crop.shape[1], crop.shape[0]), window)
-        if d is not None:
-            out[i] = d
-    return out
+class _Appearance:
+    """Collects the training images' box descriptors for the verification during ``fit``.
+
+    With the descriptor window known from the start (every box given), each
+    image's descriptors are computed at once; otherwise (boxes from masks or
+    whole images) the crops are kept until every box, hence the window, is
+    known.
+    """
+
+    def __init__(self, boxes: NDArray[np.float64]) -> None:
+        known = bool(np.all(np.isfinite(boxes)) and np.all(boxes[:, 2:] > 0))
+        self.window: tuple[int, int] | None = window_shape(boxes[:, 2:]) if known else None
+        self.rng = np.random.default_rng(0)   # background boxes: same data, same model
+        self.views: list[NDArray[np.float32] | None] = []
+        self.backgrounds: list[NDArray[np.float32] | None] = []
+
+    def _describe(self, image: NDArray[np.float64], box: Sequence[float]
+                  ) -> NDArray[np.float32] | None:
+        if self.window is not None:
+            return box_descriptor(image, box, self.window)
+        x0, y0 = max(int(round(box[0])), 0), max(int(round(box[1])), 0)
+        return image[y0:max(int(round(box[1] + box[3])), y0 + 1),
+                     x0:max(int(round(box[0] + box[2])), x0 + 1)].astype(np.float32)
+
+    def add(self, image: NDArray[np.float64], box: Sequence[float]) -> None:
+        """Describe one training image's box and some background boxes of it."""
+        self.views.append(self._describe(image, box))
+        self.backgrounds += [self._describe(image, b)
+                             for b in background_boxes(image.shape, box, self.rng)]
+
+    def finish(self, sizes: NDArray[np.float64]
+               ) -> tuple[tuple[int, int], NDArray[np.float32], NDArray[np.float64] | None]:
+        """The window, the views' descriptors (zeros where a box is too small) and the classifier."""
+        window = self.window if self.window is not None else window_shape(sizes)
+
+        def stack(items: list[NDArray[np.float32] | None]) -> NDArray[np.float32]:
+            out = np.zeros((len(items), descriptor_length(window)), dtype=np.float32)
+            for i, item in enumerate(items):
+                if item is not None and self.window is None:
+                    item = box_descriptor(item, (0, 0, item.shape[1], item.shape[0]), window)
+                if item is not None:
+                    out[i] = item
+            return out
+
+        views, negatives = stack(self.views), stack(self.backgrounds)
+        objectness = train_objectness(views[np.any(views != 0, axis=1)],
+                                      negatives[np.any(negatives != 0, axis=1)])
+        return window, views, objectness
 
 
 class NotFittedError(RuntimeError):
@@ -509,11 +548,7 @@ class PoseEstimator:
             raise ValueError(f"instances must have {k} entries, got {len(names)}")
 
         feats, centres, sizes = [], np.zeros((k, 2)), np.zeros((k, 2))
-        crops: list[NDArray[np.float32]] = []
-        # Background boxes for the objectness classifier of the verification;
-        # drawn with a fixed seed, so the same training set gives the same model.
-        rng = np.random.default_rng(0)
-        backgrounds: list[NDArray[np.float32]] = []
+        appearance = _Appearance(box_arr)
         for i, image in enumerate(images):
             label = str(image) if isinstance(image, (str, Path)) else f"images[{i}]"
             img = _load(image, name=label)
@@ -550,13 +585,7 @@ class PoseEstimator:
                 raise ValueError(f"{label}: no edges found on the object; check the box/mask "
                                  "or lower edge_thresholds")
             feats.append(f)
-            x0, y0 = max(int(round(x)), 0), max(int(round(y)), 0)
-            crops.append(img[y0:max(int(round(y + h)), y0 + 1),
-                             x0:max(int(round(x + w)), x0 + 1)].astype(np.float32))
-            for bx, by, bw, bh in background_boxes(img.shape, box, rng):
-                bx0, by0 = max(int(round(bx)), 0), max(int(round(by)), 0)
-                backgrounds.append(img[by0:max(int(round(by + bh)), by0 + 1),
-                                       bx0:max(int(round(bx + bw)), bx0 + 1)].astype(np.float32))
+            appearance.add(img, box)
             centres[i] = [x + (w - 1) / 2.0, y + (h - 1) / 2.0]
             sizes[i] = [w, h]
             if progress is not None:
@@ -574,11 +603,8 @@ class PoseEstimator:
                             box_sizes=sizes, instances=inst_index, instance_names=instance_names,
                             reference_size=reference, category=category)
         self.viewpoint_kappa_ = self._viewpoint_kappa(model)
-        self.descriptor_window_ = window_shape(sizes)
-        self.view_descriptors_ = _view_descriptors(crops, self.descriptor_window_)
-        negatives = _view_descriptors(backgrounds, self.descriptor_window_)
-        self.objectness_ = train_objectness(self.view_descriptors_,
-                                            negatives[np.any(negatives != 0, axis=1)])
+        self.descriptor_window_, self.view_descriptors_, self.objectness_ = \
+            appearance.finish(sizes)
         weights = feature_weights(model, position_sigma=self.position_sigma,
                                   orientation_kappa=self.orientation_kappa,
                                   viewpoint_kappa=self.viewpoint_kappa_)
