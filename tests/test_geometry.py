@@ -88,3 +88,10 @@ def test_pose_from_rotation_rejects_bad_shape():
 def test_rotate_points_direction():
     # +90 degrees turns +u into +v (clockwise on screen, v down)
     assert np.allclose(rotate_points(np.array([[1.0, 0.0]]), np.pi / 2), [[0.0, 1.0]])
+
+
+def test_box_iou_broadcasts():
+    from posevote.geometry import box_iou
+
+    boxes = np.array([[0, 0, 10, 10], [5, 0, 10, 10], [20, 20, 5, 5], [0, 0, 0, 0]], float)
+    np.testing.assert_allclose(box_iou(boxes, [0, 0, 10, 10]), [1.0, 50 / 150, 0.0, 0.0])

@@ -31,6 +31,7 @@ from posevote.inference.search import ProbeSet, probe_poses, viewpoint_grid
 from posevote.inference.verification import (
     background_boxes,
     box_descriptor,
+    crop_box,
     descriptor_length,
     train_objectness,
     verify_candidates,
@@ -74,9 +75,7 @@ class _Appearance:
                   ) -> NDArray[np.float32] | None:
         if self.window is not None:
             return box_descriptor(image, box, self.window)
-        x0, y0 = max(int(round(box[0])), 0), max(int(round(box[1])), 0)
-        return image[y0:max(int(round(box[1] + box[3])), y0 + 1),
-                     x0:max(int(round(box[0] + box[2])), x0 + 1)].astype(np.float32)
+        return crop_box(image, box).astype(np.float32)
 
     def add(self, image: NDArray[np.float64], box: Sequence[float]) -> None:
         """Describe one training image's box and some background boxes of it."""

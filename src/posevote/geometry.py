@@ -200,3 +200,16 @@ def rotate_points(points: ArrayLike, angle: float) -> NDArray[np.float64]:
     c, s = np.cos(angle), np.sin(angle)
     p = np.asarray(points, dtype=np.float64)
     return np.stack([c * p[..., 0] - s * p[..., 1], s * p[..., 0] + c * p[..., 1]], axis=-1)
+
+
+def box_iou(box_a: ArrayLike, box_b: ArrayLike) -> NDArray[np.float64]:
+    """Intersection over union of ``(x, y, w, h)`` boxes (broadcastable)."""
+    a = np.asarray(box_a, dtype=np.float64)
+    b = np.asarray(box_b, dtype=np.float64)
+    x0 = np.maximum(a[..., 0], b[..., 0])
+    y0 = np.maximum(a[..., 1], b[..., 1])
+    x1 = np.minimum(a[..., 0] + a[..., 2], b[..., 0] + b[..., 2])
+    y1 = np.minimum(a[..., 1] + a[..., 3], b[..., 1] + b[..., 3])
+    inter = np.clip(x1 - x0, 0, None) * np.clip(y1 - y0, 0, None)
+    union = a[..., 2] * a[..., 3] + b[..., 2] * b[..., 3] - inter
+    return np.where(union > 0, inter / np.where(union > 0, union, 1.0), 0.0)

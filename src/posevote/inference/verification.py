@@ -35,7 +35,7 @@ from numpy.typing import NDArray
 from skimage.feature import hog
 from sklearn.svm import LinearSVC
 
-from posevote.geometry import viewing_direction
+from posevote.geometry import box_iou, viewing_direction
 from posevote.inference.search import ProbeSet
 
 #: Height of the descriptor window, pixels; its width follows the training boxes' shape.
@@ -52,6 +52,14 @@ def window_shape(box_sizes: NDArray[np.float64]) -> tuple[int, int]:
     aspect = float(np.median(box_sizes[:, 0] / box_sizes[:, 1])) if len(box_sizes) else 1.0
     cells = int(np.clip(round(WINDOW_HEIGHT * aspect / _CELL), 3, 18))
     return WINDOW_HEIGHT, cells * _CELL
+
+
+def crop_box(image: NDArray[np.floating], box: Sequence[float]) -> NDArray[np.floating]:
+    """The pixels of ``image`` in ``box`` ``(x, y, w, h)`` (rounded; cut off at the borders)."""
+    x, y, w, h = (float(b) for b in box)
+    x0, y0 = max(int(round(x)), 0), max(int(round(y)), 0)
+    x1, y1 = min(int(round(x + w)), image.shape[1]), min(int(round(y + h)), image.shape[0])
+    return image[y0:max(y1, y0), x0:max(x1, x0)]
 
 
 def box_descriptor(image: NDArray[np.floating], box: Sequence[float],
@@ -72,12 +80,10 @@ def box_descriptor(image: NDArray[np.floating], box: Sequence[float],
     ndarray of float32, or None
         None when less than 8x8 pixels of the box are in the image.
     """
-    x, y, w, h = (float(b) for b in box)
-    x0, y0 = max(int(round(x)), 0), max(int(round(y)), 0)
-    x1, y1 = min(int(round(x + w)), image.shape[1]), min(int(round(y + h)), image.shape[0])
-    if x1 - x0 < 8 or y1 - y0 < 8:
+    region = crop_box(image, box)
+    if region.shape[0] < 8 or region.shape[1] < 8:
         return None
-    crop = cv2.resize(np.ascontiguousarray(image[y0:y1, x0:x1], dtype=np.float32),
+    crop = cv2.resize(np.ascontiguousarray(region, dtype=np.float32),
                       (window[1], window[0]), interpolation=cv2.INTER_AREA)
     return hog(crop, orientations=9, pixels_per_cell=(_CELL, _CELL), cells_per_block=(2, 2),
                feature_vector=True).astype(np.float32)
@@ -107,10 +113,7 @@ def background_boxes(shape: tuple[int, int], box: Sequence[float], rng: np.rando
         h = min(h0 * size, 0.95 * h_img)
         x = rng.uniform(-0.05 * w, w_img - 0.95 * w)
         y = rng.uniform(-0.05 * h, h_img - 0.95 * h)
-        iw = max(0.0, min(x + w, x0 + w0) - max(x, x0))
-        ih = max(0.0, min(y + h, y0 + h0) - max(y, y0))
-        inter = iw * ih
-        if inter / (w * h + w0 * h0 - inter) < max_overlap:
+        if box_iou((x, y, w, h), (x0, y0, w0, h0)) < max_overlap:
             out.append((x, y, w, h))
     return out
 
