@@ -76,7 +76,8 @@ def main() -> None:
               "rows": rows}
     lines = [f"Command: `{result['command']}`", "",
              f"EPFL cars {cars[0]}-{cars[-1]}, {args.max_train_features} features per training "
-             f"view; training (features + Eq. 4 weights) {train_s:.1f} s; peak resident memory "
+             f"view; training (features, Eq. 4 weights, verification descriptors) {train_s:.1f} s; "
+             f"peak resident memory "
              f"of the whole process {peak_rss:.0f} MB.", "",
              "Presets (maximum within-cluster standard deviation): " + "; ".join(
                  f"{k}: {v.pose_std_deg:g}° in viewpoint, {v.appearance_std:g} kernel widths in "
