@@ -11,6 +11,7 @@ from posevote.inference.voting import (
     gather_score,
     gather_score_reference,
     prepare_test,
+    restrict_maps,
     search_translations,
 )
 
@@ -117,3 +118,25 @@ def test_density_options_and_chance(scene):
     assert flat.density.min() >= 0 and flat.density.sum() < maps.density.sum()
     half, shape = scaled_features(feats, (100, 120), 2.0)
     assert shape == (50, 60) and np.allclose(half.xy, feats.xy / 2.0)
+
+
+def test_restrict_maps_keeps_the_window_only():
+    # Features only at a few orientations, so that the last orientation bins
+    # are empty (the bin bookkeeping must cope).
+    rng = np.random.default_rng(5)
+    xy = rng.uniform(0, 120, (80, 2))
+    theta = rng.choice([0.1, 0.5, 1.0], 80)
+    feats = EdgeFeatures(xy=xy, theta=theta)
+    maps = prepare_test(feats, (120, 120), position_sigma=2.0, orientation_kappa=8.0)
+    lo, hi = np.array([30.0, 40.0]), np.array([80.0, 90.0])
+    sub = restrict_maps(maps, lo, hi)
+    inside = np.all((xy >= lo) & (xy <= hi), axis=1)
+    alone = prepare_test(feats.select(inside), (120, 120), position_sigma=2.0,
+                         orientation_kappa=8.0)
+    np.testing.assert_array_equal(sub.bin_start, alone.bin_start)
+    np.testing.assert_allclose(np.sort(sub.xy, axis=0), np.sort(alone.xy, axis=0))
+    assert not sub.density[:, :40, :].any() and not sub.density[:, :, 82:].any()
+    # Away from the window's border the masked density is the one prepared anew.
+    np.testing.assert_allclose(sub.density[:, 50:80, 40:70], alone.density[:, 50:80, 40:70],
+                               atol=1e-3)
+    assert 0 < sub.chance < maps.chance

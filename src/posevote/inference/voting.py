@@ -241,10 +241,9 @@ def restrict_maps(maps: TestMaps, lo: NDArray[np.float64], hi: NDArray[np.float6
     TestMaps
     """
     inside = np.all((maps.xy >= lo) & (maps.xy <= hi), axis=1)
-    counts = np.add.reduceat(inside.astype(np.int64), maps.bin_start[:-1]) \
-        if len(inside) else np.zeros(len(maps.bin_start) - 1, dtype=np.int64)
-    # reduceat gives the element itself for empty bins; count them as 0.
-    counts = np.where(np.diff(maps.bin_start) > 0, counts, 0)
+    n_bins = len(maps.bin_start) - 1
+    bins = np.repeat(np.arange(n_bins), np.diff(maps.bin_start))
+    counts = np.bincount(bins[inside], minlength=n_bins)
     bin_start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
     h, w = maps.shape
     c0, r0 = (max(int(np.floor(x)), 0) for x in lo)
