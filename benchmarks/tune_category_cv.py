@@ -19,13 +19,14 @@ margin ``m`` is the refined one when the recognition margin is at least
 instances, so their leave-one-out model holds one instance and never
 refines: they enter the seen part only. The models are pruned with the
 ``moderate`` preset, as in the protocol's "refined with instance model" row.
+With ``--param`` settings, the study is repeated for each of them.
 
 Usage::
 
     python benchmarks/tune_category_cv.py --param instance_margin=1.0 --param instance_margin=1.1
         [--markdown docs/results/tuning_category_cv.md]
     python benchmarks/tune_category_cv.py --margins 1.0,1.1,1.25,1.5,inf
-        [--markdown docs/results/tuning_instance_margin.md]
+        [--param instance_search=True ...] [--markdown docs/results/tuning_instance_margin.md]
 """
 
 from __future__ import annotations
@@ -67,7 +68,7 @@ def run(data: Path, params: dict) -> dict[str, tuple[float, float, float]]:
     return out
 
 
-def margin_records(data: Path) -> list[dict]:
+def margin_records(data: Path, params: dict | None = None) -> list[dict]:
     """Per test image: category error, refined error, margin, for seen and unseen instances."""
     views = list(range(0, 360, 20))
     folds = []
@@ -83,7 +84,7 @@ def margin_records(data: Path) -> list[dict]:
     for cat, half, kind, train_objs, train_az, test_objs, test_az in folds:
         train = read_coil(data, objects=train_objs, azimuths_deg=train_az)
         test = read_coil(data, objects=test_objs, azimuths_deg=test_az)
-        est = PoseEstimator(prune="moderate", instance_margin=1.0).fit(
+        est = PoseEstimator(**{"prune": "moderate", **(params or {}), "instance_margin": 1.0}).fit(
             train.images, train.poses, boxes=train.boxes, instances=list(train.instances))
         for image, pose in zip(test.images, test.poses, strict=True):
             refined = est.set_params(recognize_instance=True).estimate(image)
@@ -125,15 +126,17 @@ def main() -> None:
                         "seen and left-out instances (e.g. 1.0,1.1,inf)")
     parser.add_argument("--markdown", type=Path)
     args = parser.parse_args()
+    settings = [{}] if not args.param else [parse_settings([p]) for p in args.param]
     if args.margins:
         margins = [float(m) for m in args.margins.split(",")]
-        lines = ["Command: `python " + " ".join(shlex.quote(a) for a in sys.argv) + "`", "",
-                 *margin_lines(margin_records(args.data), margins)]
-        print("\n".join(lines))
+        lines = ["Command: `python " + " ".join(shlex.quote(a) for a in sys.argv) + "`"]
+        for params in settings:
+            lines += ["", f"Setting: {params or 'defaults'}", "",
+                      *margin_lines(margin_records(args.data, params), margins)]
+            print("\n".join(lines[-len(margins) - 4:]), flush=True)
         if args.markdown:
             args.markdown.write_text("\n".join(lines) + "\n")
         return
-    settings = [{}] if not args.param else [parse_settings([p]) for p in args.param]
     lines = ["Command: `python " + " ".join(shlex.quote(a) for a in sys.argv) + "`", "",
              "| setting | " + " | ".join(f"{c} median / mean / recognised %"
                                          for c in COIL_CATEGORIES) + " | sum of medians "

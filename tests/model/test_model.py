@@ -130,3 +130,37 @@ def test_select_instances_reindexes(synthetic_training):
     assert one.instance_names == ("b",) and one.n_views == 6 and one.view.max() == 5
     with pytest.raises(ValueError, match="instance 7 has no training views"):
         full.select_instances([7])
+
+
+def test_instance_sizes_follow_the_instances(tmp_path, draw):
+    from posevote import PoseEstimator
+    from posevote.data import object_box
+
+    az = np.radians(np.arange(0, 360, 40))
+    images = [draw(a) for a in az] + [draw(a, scale=0.8) for a in az]
+    boxes = np.array([object_box(im) for im in images])
+    est = PoseEstimator().fit(images, np.concatenate([az, az]), boxes=boxes,
+                              instances=["big"] * 9 + ["small"] * 9)
+    full = est.full_model_
+    big, small = full.instance_size
+    assert small / big == pytest.approx(0.8, abs=0.05)
+    assert (big + small) / 2 == pytest.approx(1.0)  # the reference: the median of two heights
+    assert full.instance_model(1).instance_size == (small,)
+    assert full.instance_model(1).size_of(0) == small
+    assert toy_model().size_of(0) == 1.0  # built without sizes
+    est.save(tmp_path / "m.npz")
+    assert PoseEstimator.load(tmp_path / "m.npz").full_model_.instance_size == (big, small)
+
+
+def test_model_file_refuses_bad_instance_sizes(tmp_path, monkeypatch):
+    import json
+
+    save_model(tmp_path / "m.npz", toy_model(), {})
+    with np.load(tmp_path / "m.npz") as data:
+        arrays = dict(data)
+    header = json.loads(arrays["header"].tobytes())
+    header["instance_size"] = [1.0, -2.0]
+    arrays["header"] = np.frombuffer(json.dumps(header).encode(), dtype=np.uint8)
+    np.savez(tmp_path / "bad.npz", **arrays)
+    with pytest.raises(ValueError, match="bad.npz: corrupt model file \\(instance_size"):
+        load_model(tmp_path / "bad.npz")

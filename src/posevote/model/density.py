@@ -45,6 +45,10 @@ class PoseModel:
         Pixels per reference unit in the training images (median box height).
     category : str
         Category name, "" if none.
+    instance_size : tuple of float
+        Each instance's median training box height over ``reference_size``:
+        the scale at which the model matches the instance at its training
+        size (empty: all 1).
     """
 
     xy: NDArray[np.float64]
@@ -58,6 +62,11 @@ class PoseModel:
     instance_names: tuple[str, ...]
     reference_size: float
     category: str = ""
+    instance_size: tuple[float, ...] = ()
+
+    def size_of(self, instance: int) -> float:
+        """The training size of an instance relative to the reference (1.0 if unknown)."""
+        return float(self.instance_size[instance]) if self.instance_size else 1.0
 
     @property
     def n_features(self) -> int:
@@ -110,7 +119,9 @@ class PoseModel:
                       view_elevation=self.view_elevation[views], view_box=self.view_box[views],
                       view_instance=np.array([renumber[int(i)] for i in self.view_instance[views]],
                                              dtype=np.int64),
-                      instance_names=tuple(self.instance_names[i] for i in chosen))
+                      instance_names=tuple(self.instance_names[i] for i in chosen),
+                      instance_size=tuple(self.instance_size[i] for i in chosen)
+                      if self.instance_size else ())
         return PoseModel(**fields)
 
     def with_weights(self, weight: NDArray[np.float64]) -> PoseModel:
@@ -131,6 +142,7 @@ def build_model(
     instance_names: Sequence[str],
     reference_size: float,
     category: str = "",
+    instance_size: Sequence[float] = (),
 ) -> PoseModel:
     """Pool the features of the training views into a :class:`PoseModel`.
 
@@ -155,6 +167,8 @@ def build_model(
         Pixels per reference unit that scale 1 stands for.
     category : str, optional
         Category name.
+    instance_size : sequence of float, optional
+        Training size of each instance relative to ``reference_size``.
 
     Returns
     -------
@@ -181,6 +195,7 @@ def build_model(
         instance_names=tuple(instance_names),
         reference_size=float(reference_size),
         category=category,
+        instance_size=tuple(float(f) for f in instance_size),
     )
 
 

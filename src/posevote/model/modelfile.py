@@ -10,7 +10,9 @@ pruned category model (for instance recognition and refinement). Version 1
 files are still read. The optional ``view_descriptor`` array (one appearance
 descriptor per training view, for ``verify_candidates``) and ``objectness``
 array (the verification's classifier) are additions that version-2 readers
-ignore, so they keep the version number.
+ignore, so they keep the version number; so is the header's optional
+``instance_size`` (each instance's training size relative to the reference,
+for ``instance_search``; files without it read as all 1).
 """
 
 from __future__ import annotations
@@ -62,6 +64,7 @@ def save_model(path: str | Path, model: PoseModel, params: dict[str, Any],
         "instance_names": list(model.instance_names),
         "reference_size": model.reference_size,
         "category": model.category,
+        "instance_size": list(model.instance_size),
         "extra": extra or {},
     }
     arrays = {name: getattr(model, name) for name in _ARRAYS}
@@ -162,6 +165,12 @@ def _build(path: Path, arrays: dict[str, np.ndarray], header: dict[str, Any]) ->
                  and (m == 0 or (arrays["view"].min() >= 0 and arrays["view"].max() < k)))
     if not shapes_ok:
         raise ValueError(f"{path}: corrupt model file (inconsistent array shapes)")
+    names = tuple(header.get("instance_names", []))
+    size = header.get("instance_size", [])
+    if not (isinstance(size, list) and (not size or len(size) == len(names))
+            and all(isinstance(f, (int, float)) and np.isfinite(f) and f > 0 for f in size)):
+        raise ValueError(f"{path}: corrupt model file (instance_size must list one positive "
+                         f"number per instance)")
     return PoseModel(
         xy=arrays["xy"].astype(np.float64), theta=arrays["theta"].astype(np.float64),
         view=arrays["view"].astype(np.int64), weight=arrays["weight"].astype(np.float64),
@@ -169,7 +178,8 @@ def _build(path: Path, arrays: dict[str, np.ndarray], header: dict[str, Any]) ->
         view_elevation=arrays["view_elevation"].astype(np.float64),
         view_box=arrays["view_box"].astype(np.float64),
         view_instance=arrays["view_instance"].astype(np.int64),
-        instance_names=tuple(header.get("instance_names", [])),
+        instance_names=names,
         reference_size=float(header.get("reference_size", 1.0)),
         category=str(header.get("category", "")),
+        instance_size=tuple(float(f) for f in size),
     )
