@@ -288,8 +288,8 @@ class PoseEstimator:
         small and large ones, and a near search cannot undo the category's
         front/back confusions); the instances are then scored at their own
         estimates (Eqs. 5-6) and, with ``instance_margin``, the winner's
-        estimate is kept. About twice the time per image for a 4-instance
-        model. Chosen by the COIL category cross-validation on training
+        estimate is kept. About 1.6 times the time per image on the COIL
+        categories (2 to 4 instances). Chosen by the COIL category cross-validation on training
         views (``benchmarks/tune_category_cv.py``, docs/TUNING.md): sums
         of medians / means over seen and left-out instances 31.4 / 104.7
         -> 26.3 / 65.3 degrees. With per-scale search maps

@@ -216,11 +216,14 @@ _EPFL_ROWS = (
 
 # epfl-10-10 runs its main row unless asked for more (``--rows all``): the
 # issue gives the protocol 15 minutes with 2 processes, and
-# benchmarks/time_epfl_10_10.py projects 13.5 minutes for the main row and
-# 38.6 for all three with the appearance verification and its short list
-# (docs/results/time_epfl_10_10.md; 13.1 / 37.4 before it; 26 s of it
-# training, 7 s of which the verification's descriptors and classifier). The pruning rows'
-# accuracy and kept fractions are measured on epfl-cv.
+# benchmarks/time_epfl_10_10.py projects 14.0 minutes for the main row and
+# 42.0 for all three with the appearance verification and its short list
+# (docs/results/time_epfl_10_10.md; 27 s of it training, 7 s of which the
+# verification's descriptors and classifier). The same code measured 13.5
+# and 15.6 minutes on other runs (the machine's speed varies by about 10%,
+# and a fresh checkout's first row also pays numba's compilation, which the
+# projection multiplies by the frame count). The pruning rows' accuracy and
+# kept fractions are measured on epfl-cv.
 _EPFL_10_10_DEFAULT_ROWS = ("weights + fitting",)
 
 _EPFL_PUBLISHED = """\
