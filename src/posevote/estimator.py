@@ -289,10 +289,11 @@ class PoseEstimator:
         front/back confusions); the instances are then scored at their own
         estimates (Eqs. 5-6) and, with ``instance_margin``, the winner's
         estimate is kept. About 1.6 times the time per image on the COIL
-        categories (2 to 4 instances). Chosen by the COIL category cross-validation on training
-        views (``benchmarks/tune_category_cv.py``, docs/TUNING.md): sums
-        of medians / means over seen and left-out instances 31.4 / 104.7
-        -> 26.3 / 65.3 degrees. With per-scale search maps
+        categories (2 to 4 instances). Chosen by the COIL category
+        cross-validation on training views
+        (``benchmarks/tune_category_cv.py``, docs/TUNING.md): sums of
+        medians / means over seen and left-out instances 31.4 / 104.7 ->
+        26.3 / 65.3 degrees. With per-scale search maps
         (``object_kernel``) the scale grid stays the category's.
     verify_candidates : int, default 0
         Verify this many of the search's best probes by the appearance of
@@ -821,31 +822,44 @@ class PoseEstimator:
                                                                fine, scale_maps),
                                 self.refine_modes)
         instance, margin = "", float("nan")
-        if self._recognizing() and hyps and fine is not None and self.instance_search:
-            own = [self._instance_refine(i, hyps[0], search_maps, fine, near=False)
-                   for i in range(len(self.full_model_.instance_names))]
-            # Each instance is judged at its own estimate. (Judging it at the
-            # better aligned of its own estimate and the category's lost on
-            # the category cross-validation, docs/TUNING.md.)
-            best, margin = recognition_margin(self._explained(own, feats, fine))
-            if margin >= self.instance_margin:
-                instance = self.full_model_.instance_names[best]
-                # The category mode nearest to the instance's estimate gives way to it.
-                at = int(np.argmin([angular_error(h.azimuth, own[best].azimuth) for h in hyps]))
-                hyps = [own[best]] + [h for k, h in enumerate(hyps) if k != at]
-        elif self._recognizing() and hyps and fine is not None:
-            per_mode = np.array([self.instance_scores(h, feats, fine)
-                                 for h in hyps[:self.recognition_modes]])
-            best, margin = recognition_margin(per_mode.max(axis=0))
-            if margin >= self.instance_margin:
-                instance = self.full_model_.instance_names[best]
-                at = int(np.argmax(per_mode[:, best]))
-                refined = self._instance_refine(best, hyps[at], search_maps, fine)
-                hyps = [refined] + [h for k, h in enumerate(hyps) if k != at]
+        if self._recognizing() and hyps and fine is not None:
+            hyps, instance, margin = self._recognize(hyps, feats, search_maps, fine)
         kept = tuple(h for h in hyps if h.score > self.min_score)
         return PoseEstimate(found=bool(kept), best=kept[0] if kept else None, modes=kept,
                             n_test_features=len(feats), seconds=time.perf_counter() - start,
                             instance=instance if kept else "", instance_margin=margin)
+
+    def _recognize(self, hyps: list[Hypothesis], feats: EdgeFeatures,
+                   search_maps: TestMaps | list[TestMaps], fine: TestMaps
+                   ) -> tuple[list[Hypothesis], str, float]:
+        """Recognise the instance and re-estimate with its model (Sec. III-B).
+
+        Returns the modes (the instance's estimate first when one wins by
+        ``instance_margin``), the instance's name ("" if none) and the
+        recognition margin.
+        """
+        names = self.full_model_.instance_names
+        if self.instance_search:
+            own = [self._instance_refine(i, hyps[0], search_maps, fine, near=False)
+                   for i in range(len(names))]
+            # Each instance is judged at its own estimate. (Judging it at the
+            # better aligned of its own estimate and the category's lost on
+            # the category cross-validation, docs/TUNING.md.)
+            best, margin = recognition_margin(self._explained(own, feats, fine))
+            if margin < self.instance_margin:
+                return hyps, "", margin
+            # The category mode nearest to the instance's estimate gives way to it.
+            at = int(np.argmin([angular_error(h.azimuth, own[best].azimuth) for h in hyps]))
+            refined = own[best]
+        else:
+            per_mode = np.array([self.instance_scores(h, feats, fine)
+                                 for h in hyps[:self.recognition_modes]])
+            best, margin = recognition_margin(per_mode.max(axis=0))
+            if margin < self.instance_margin:
+                return hyps, "", margin
+            at = int(np.argmax(per_mode[:, best]))
+            refined = self._instance_refine(best, hyps[at], search_maps, fine)
+        return [refined] + [h for k, h in enumerate(hyps) if k != at], names[best], margin
 
     def _verify(self, probes: ProbeSet, image: NDArray[np.float64], feats: EdgeFeatures,
                 search_maps: TestMaps | list[TestMaps]
