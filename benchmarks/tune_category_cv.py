@@ -121,12 +121,13 @@ def main() -> None:
     parser.add_argument("--data", type=Path,
                         default=Path(__file__).resolve().parents[2] / "shared" / "data" / "coil-100")
     parser.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
-                        help="one setting per --param (each is a row; none: the defaults)")
+                        help="one setting per --param, space-separated NAME=VALUE items "
+                        "(each is a row; none: the defaults)")
     parser.add_argument("--margins", help="comma-separated instance_margin values to study on "
                         "seen and left-out instances (e.g. 1.0,1.1,inf)")
     parser.add_argument("--markdown", type=Path)
     args = parser.parse_args()
-    settings = [{}] if not args.param else [parse_settings([p]) for p in args.param]
+    settings = [{}] if not args.param else [parse_settings(p.split()) for p in args.param]
     if args.margins:
         margins = [float(m) for m in args.margins.split(",")]
         lines = ["Command: `python " + " ".join(shlex.quote(a) for a in sys.argv) + "`"]
