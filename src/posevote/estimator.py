@@ -615,11 +615,12 @@ class PoseEstimator:
         inst_height = np.array([np.median(sizes[inst_index == j, 1])
                                 for j in range(len(instance_names))])
         reference = float(np.median(inst_height))
-        scales = inst_height[inst_index] / reference
+        inst_size = inst_height / reference
+        scales = inst_size[inst_index]
         model = build_model(feats, poses=pose_arr, centers=centres, scales=scales,
                             box_sizes=sizes, instances=inst_index, instance_names=instance_names,
                             reference_size=reference, category=category,
-                            instance_size=(inst_height / reference).tolist())
+                            instance_size=inst_size.tolist())
         self.viewpoint_kappa_ = self._viewpoint_kappa(model)
         self.descriptor_window_, self.view_descriptors_, self.objectness_ = \
             appearance.finish(sizes)
