@@ -255,7 +255,8 @@ class PoseEstimator:
         instance refinement's search uses the subset too; the local
         refinement and the recognition scores read all of them.
     vote_candidates : int, default 2
-        Vote peaks per probe whose exact score is computed.
+        Vote peaks per probe whose exact score is computed; the best of
+        them is polished to the pixel.
     prune : {None, "moderate", "aggressive"}, default None
         Prune the pooled model by clustering (Sec. III-A) with a named
         preset (:data:`posevote.model.pruning.PRESETS`); the search then

@@ -183,7 +183,7 @@ def probe_poses(
     cell : float, optional
         Vote grid cell, pixels (default: from the maps' kernel width).
     n_candidates : int, optional
-        Vote peaks polished per probe.
+        Vote peaks scored exactly per probe (the best is polished).
     max_voters : int or None, optional
         Training features that vote per probe (an even subset; all count in
         the exact score).
