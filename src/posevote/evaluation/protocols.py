@@ -216,13 +216,14 @@ _EPFL_ROWS = (
 
 # epfl-10-10 runs its main row unless asked for more (``--rows all``): the
 # issue gives the protocol 15 minutes with 2 processes, and
-# benchmarks/time_epfl_10_10.py projects 14.0 minutes for the main row and
-# 42.0 for all three with the appearance verification and its short list
-# (docs/results/time_epfl_10_10.md; 27 s of it training, 7 s of which the
-# verification's descriptors and classifier). The same code measured 13.5
-# and 15.6 minutes on other runs (the machine's speed varies by about 10%,
-# and a fresh checkout's first row also pays numba's compilation, which the
-# projection multiplies by the frame count). The pruning rows' accuracy and
+# benchmarks/time_epfl_10_10.py projects 11.6 minutes for the main row
+# (docs/results/time_epfl_10_10.md; 26 s of it training, 7 s of which the
+# verification's descriptors and classifier). Until stop 15 every vote peak
+# of the search was hill-climbed and the same projection gave 13.5 to 15.6
+# minutes from run to run (the machine's speed varies by about 10%, and a
+# fresh checkout's first row also pays numba's compilation, which the
+# projection multiplies by the frame count); all three rows projected 42.0
+# then, about 35 now by the same ratio (not measured again). The pruning rows' accuracy and
 # kept fractions are measured on epfl-cv.
 _EPFL_10_10_DEFAULT_ROWS = ("weights + fitting",)
 
