@@ -92,6 +92,30 @@ def test_search_on_a_feature_subset(scene):
     assert score[1, 1] == pytest.approx(ref, rel=1e-2)
 
 
+def test_search_polishes_the_vote_peak_with_the_best_exact_score(scene):
+    # A decoy made of the voting features only (every second one, with
+    # max_voters=20 of 40), each three times over, outvotes the object, but
+    # with the density capped at one point's peak it explains only the
+    # voters' half of the weight. Ranking the vote peaks by their exact
+    # score finds the object; the top vote peak alone is the decoy.
+    train_xy, train_theta, train_w, *_ = scene
+    obj, decoy = np.array([45.0, 50.0]), np.array([125.0, 50.0])
+    voters = slice(0, None, 2)
+    xy = np.vstack([train_xy + obj] + [train_xy[voters] + decoy] * 3)
+    theta = np.concatenate([train_theta] + [train_theta[voters]] * 3)
+    peak = 2.0 / (np.sqrt(2 * np.pi) * 2.0)
+    maps = prepare_test(EdgeFeatures(xy=xy, theta=theta), (100, 170), position_sigma=2.0,
+                        orientation_kappa=8.0, density_cap=peak)
+    grid = {"inplanes": np.zeros(1), "scales": np.ones(1), "max_voters": 20}
+    score, trans = search_translations(maps, train_xy, train_theta, train_w, n_candidates=3,
+                                       **grid)
+    assert trans[0, 0] == pytest.approx(obj, abs=0.5)
+    top_score, top = search_translations(maps, train_xy, train_theta, train_w, n_candidates=1,
+                                         **grid)
+    assert np.linalg.norm(top[0, 0] - decoy) < 3.0   # on the decoy's capped plateau
+    assert top_score[0, 0] < 0.8 * score[0, 0]
+
+
 def test_clutter_statistics():
     line = EdgeFeatures(xy=np.stack([np.arange(10, 90, 2.0), np.full(40, 50.0)], 1),
                         theta=np.zeros(40))
