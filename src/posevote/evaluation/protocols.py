@@ -223,8 +223,8 @@ _EPFL_ROWS = (
 # minutes from run to run (the machine's speed varies by about 10%, and a
 # fresh checkout's first row also pays numba's compilation, which the
 # projection multiplies by the frame count); all three rows projected 42.0
-# then, about 35 now by the same ratio (not measured again). The pruning rows' accuracy and
-# kept fractions are measured on epfl-cv.
+# then, about 35 now by the same ratio (not measured again). The pruning
+# rows' accuracy and kept fractions are measured on epfl-cv.
 _EPFL_10_10_DEFAULT_ROWS = ("weights + fitting",)
 
 _EPFL_PUBLISHED = """\
