@@ -81,6 +81,7 @@ def test_unfitted_raises():
         ({"max_voters": 2.5}, "max_voters must be an integer >= 1 or None"),
         ({"verify_candidates": -1}, "verify_candidates must be an integer >= 0"),
         ({"verify_margin": 5.0}, "verify_margin must be in"),
+        ({"verify_overlap": 1.0}, "verify_overlap must be in"),
         ({"verify_shortlist": 0}, "verify_shortlist must be an integer >= 1"),
     ],
 )
@@ -298,3 +299,25 @@ def test_instance_search_finds_a_small_instance_at_its_own_size(draw):
     # The instance searched its own scale grid (0.9-1.1 times its size),
     # below the category grid (0.9-1.1); the fit may leave it a little.
     assert result.best.scale == pytest.approx(small, rel=0.15)
+
+
+def test_verification_keeps_the_search_near_the_verified_box(synthetic_training, draw):
+    from posevote.geometry import box_iou
+
+    images, az, boxes = synthetic_training
+    scene = np.zeros((200, 260))
+    scene[30:158, 70:198] = draw(np.radians(100))
+    est = PoseEstimator(verify_candidates=5).fit(images, az, boxes=boxes)
+    feats, shape, img = est._read(scene)
+    maps = est._search_maps(feats, shape)
+    probes = est._probe(maps, None)
+    kept = []
+    for overlap in (0.0, 0.9):
+        est.set_params(verify_overlap=overlap)
+        located = est._verify(probes, img, feats, maps)
+        assert located is not None
+        again = located[2]
+        kept.append(again.boxes()[again.score > 0])
+    assert len(kept[1]) < len(kept[0])
+    # Every kept box overlaps the verified one by 0.9, hence each other by about 0.8.
+    assert np.all(box_iou(kept[1][:, None, :], kept[1][None, :, :]) > 0.75)

@@ -15,7 +15,7 @@ from __future__ import annotations
 import inspect
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any
 
@@ -25,7 +25,7 @@ from scipy.ndimage import binary_dilation
 
 from posevote.data.images import as_gray_float, read_image, read_mask
 from posevote.features.edges import EdgeFeatures, box_mask, detect_edges
-from posevote.geometry import angular_error, viewing_direction
+from posevote.geometry import angular_error, box_iou, viewing_direction
 from posevote.inference.recognition import explained_fraction, recognition_margin
 from posevote.inference.search import ProbeSet, probe_poses, viewpoint_grid
 from posevote.inference.verification import (
@@ -312,6 +312,10 @@ class PoseEstimator:
         of the descriptors (trained on the training boxes against random
         boxes of the training images that miss the object) finds most
         object-like are compared with the training views.
+    verify_overlap : float, default 0.0
+        The re-estimation inside the verified box keeps only the probes
+        whose box overlaps the verified one by at least this intersection
+        over union; 0: any box within the grown window.
     max_modes : int, default 3
         Modes reported per image.
     min_score : float, default 0.0
@@ -366,6 +370,7 @@ class PoseEstimator:
         verify_candidates: int = 0,
         verify_margin: float = 0.25,
         verify_shortlist: int = 10,
+        verify_overlap: float = 0.0,
         max_modes: int = 3,
         min_score: float = 0.0,
     ) -> None:
@@ -414,6 +419,7 @@ class PoseEstimator:
         self.verify_candidates = verify_candidates
         self.verify_margin = verify_margin
         self.verify_shortlist = verify_shortlist
+        self.verify_overlap = verify_overlap
         self.max_modes = max_modes
         self.min_score = min_score
 
@@ -481,6 +487,8 @@ class PoseEstimator:
                              f"got {self.verify_candidates!r}")
         if not (isinstance(self.verify_margin, (int, float)) and 0 <= self.verify_margin <= 2):
             raise ValueError(f"verify_margin must be in [0, 2], got {self.verify_margin!r}")
+        if not (isinstance(self.verify_overlap, (int, float)) and 0 <= self.verify_overlap < 1):
+            raise ValueError(f"verify_overlap must be in [0, 1), got {self.verify_overlap!r}")
         self._pruning()
         if not self.instance_margin >= 1:
             raise ValueError(f"instance_margin must be >= 1, got {self.instance_margin!r}")
@@ -907,7 +915,13 @@ class PoseEstimator:
                           box=(float(corner[0]), float(corner[1]), float(size[0]),
                                float(size[1])),
                           score=float(probes.score[v, a, s]), refined=False)
-        return feats.select(keep), maps, self._probe(maps, None, near=near)
+        again = self._probe(maps, None, near=near)
+        if self.verify_overlap > 0:
+            # The edges inside the grown box still fit a part of the object at
+            # a smaller scale; the appearance chose this box, so stay near it.
+            again = replace(again, score=np.where(
+                box_iou(again.boxes(), near.box) >= self.verify_overlap, again.score, 0.0))
+        return feats.select(keep), maps, again
 
     def _recognizing(self) -> bool:
         return bool(self.recognize_instance) and len(self._check_fitted().instance_names) > 1

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from posevote.inference import viewpoint_grid
+from posevote.inference import ProbeSet, viewpoint_grid
 
 
 def test_viewpoint_grid_subdivides_turntable(fitted_estimator):
@@ -40,3 +40,15 @@ def test_per_scale_maps_and_chance_correction(fitted_estimator, draw):
     assert np.all(corrected.score <= raw.score + 1e-12) and corrected.score.max() > 0
     with pytest.raises(ValueError, match="one TestMaps per scale"):
         probe_poses(est.model_, maps[:1], **kw)
+
+
+def test_probe_boxes_are_the_viewpoint_box_at_each_scale_around_each_translation():
+    translation = np.zeros((2, 1, 2, 2))
+    translation[1, 0, 1] = (50.0, 40.0)
+    probes = ProbeSet(azimuth=np.zeros(2), elevation=np.zeros(2), inplane=np.zeros(1),
+                      scale=np.array([1.0, 2.0]), score=np.ones((2, 1, 2)),
+                      translation=translation, box=np.array([[10.0, 6.0], [20.0, 8.0]]))
+    boxes = probes.boxes()
+    assert boxes.shape == (2, 1, 2, 4)
+    assert np.allclose(boxes[1, 0, 1], (30.0, 32.0, 40.0, 16.0))
+    assert np.allclose(boxes[0, 0, 0], (-5.0, -3.0, 10.0, 6.0))

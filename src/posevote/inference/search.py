@@ -54,6 +54,12 @@ class ProbeSet:
         """Viewing direction of each probed viewpoint, shape (V, 3)."""
         return viewing_direction(self.azimuth, self.elevation)
 
+    def boxes(self) -> NDArray[np.float64]:
+        """Box ``(x, y, w, h)`` of every probe, pixels, shape (V, A, S, 4)."""
+        size = np.broadcast_to(self.box[:, None, None, :] * self.scale[None, None, :, None],
+                               self.translation.shape)
+        return np.concatenate([self.translation - size / 2.0, size], axis=-1)
+
     @property
     def turntable(self) -> bool:
         """True when every probe has the same elevation (only azimuth varies)."""
