@@ -908,12 +908,10 @@ class PoseEstimator:
         else:
             maps = [restrict_maps(m, (centre - half) / f, (centre + half) / f)
                     for m, f in zip(search_maps, probes.scale, strict=True)]
-        corner = centre - size / 2.0
+        x, y, w, h = (float(b) for b in probes.boxes()[v, a, s])
         near = Hypothesis(azimuth=float(probes.azimuth[v]), elevation=float(probes.elevation[v]),
                           inplane=float(probes.inplane[a]), scale=float(probes.scale[s]),
-                          position=(float(centre[0]), float(centre[1])),
-                          box=(float(corner[0]), float(corner[1]), float(size[0]),
-                               float(size[1])),
+                          position=(float(centre[0]), float(centre[1])), box=(x, y, w, h),
                           score=float(probes.score[v, a, s]), refined=False)
         again = self._probe(maps, None, near=near)
         if self.verify_overlap > 0:

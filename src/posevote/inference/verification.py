@@ -183,6 +183,7 @@ def verify_candidates(probes: ProbeSet, image: NDArray[np.float64],
     train_dirs = viewing_direction(view_azimuth, view_elevation)
     cos_tol = np.cos(tolerance)
     found: list[tuple[tuple[int, int, int], NDArray[np.bool_], NDArray[np.float32]]] = []
+    boxes = probes.boxes()
     for flat in order:
         v, a, s = (int(i) for i in np.unravel_index(flat, probes.score.shape))
         if probes.score[v, a, s] <= 0:
@@ -190,10 +191,7 @@ def verify_candidates(probes: ProbeSet, image: NDArray[np.float64],
         near = train_dirs @ probes.directions[v] >= cos_tol
         if not near.any():
             continue
-        size = probes.box[v] * probes.scale[s]
-        centre = probes.translation[v, a, s]
-        d = box_descriptor(image, (centre[0] - size[0] / 2, centre[1] - size[1] / 2,
-                                   size[0], size[1]), window)
+        d = box_descriptor(image, boxes[v, a, s], window)
         if d is not None:
             found.append(((v, a, s), near, d))
     if not found:
