@@ -41,6 +41,7 @@ from posevote.inference.voting import TestMaps, prepare_test, restrict_maps, sca
 from posevote.model.density import PoseModel, build_model
 from posevote.model.kernels import kappa_for_width
 from posevote.model.modelfile import load_model, save_model
+from posevote.model.morph import ViewCrops, turntable_neighbours, view_shifts
 from posevote.model.pruning import PruningPreset, prune_model, resolve_preset
 from posevote.model.weights import feature_weights
 from posevote.refinement.fitting import VIEW_SHAPE, find_modes, probe_spacing, refine_mode
@@ -101,6 +102,15 @@ class _Appearance:
         objectness = train_objectness(views[np.any(views != 0, axis=1)],
                                       negatives[np.any(negatives != 0, axis=1)])
         return window, views, objectness
+
+
+#: Half width at half maximum of K1, in training-view spacings, for models
+#: fitted with ``morph_views`` and no ``viewpoint_bandwidth_deg`` (0.5
+#: otherwise). Chosen on the rendered turntables at the COIL protocol's
+#: offsets (``benchmarks/tune_rendered.py``, two probes per gap): median /
+#: mean error 1.11 / 1.52 degrees at 0.625, 1.02 / 1.81 at 0.75, 1.15 / 1.96
+#: at 0.875, 1.47 / 3.71 at 1.5 (docs/TUNING.md).
+MORPH_BANDWIDTH = 0.75
 
 
 class NotFittedError(RuntimeError):
@@ -167,6 +177,18 @@ class PoseEstimator:
         views it lost 11 points of positions within 5 px, and at the COIL
         protocol's offsets (rendered development set) it was neutral, so
         it is off (``docs/TUNING.md``). The azimuth is the same either way.
+    morph_views : bool, default False
+        Training: measure, by optical flow between neighbouring turntable
+        views of each instance, where every training feature moves to in
+        the next and previous view, so that between training views the
+        features of psi move with the object instead of blending two
+        misaligned copies (:mod:`posevote.model.morph`; beyond the paper).
+        Takes effect when the model is fitted; with it, probe the gaps too
+        (``viewpoint_subdivisions=2``). On the epfl-single development run
+        (cars 2-10, frames 9-24 degrees apart) that cut the median / mean
+        error from 2.39 / 6.4 to 1.36 / 3.6 degrees for 1.6 times the time;
+        with views 40 degrees apart (the COIL cross-validations) the flow is
+        poor and it lost (``docs/TUNING.md``).
     refine_scale_steps : float or None, default 1.0
         The local refinement (with ``fitting``) keeps the scale within this
         many steps of the search's scale grid (at least 5% per step) of the
@@ -180,7 +202,8 @@ class PoseEstimator:
         Combined appearance kernel concentration in (doubled) orientation.
     viewpoint_bandwidth_deg : float or None, default None
         Half width at half maximum of the pose kernel K1 on viewpoints;
-        None sets it to half the median spacing of the training viewpoints.
+        None sets it to half the median spacing of the training viewpoints
+        (:data:`MORPH_BANDWIDTH` spacings with ``morph_views``).
     viewpoint_subdivisions : int, default 1
         Probes per training-viewpoint gap (turntable models): 1 probes the
         training viewpoints only.
@@ -334,6 +357,7 @@ class PoseEstimator:
         narrow_scale: bool = True,
         refine_scale_steps: float | None = 1.0,
         interpolate_alignment: bool = False,
+        morph_views: bool = False,
         position_sigma: float = 3.0,
         orientation_kappa: float = 8.0,
         viewpoint_bandwidth_deg: float | None = None,
@@ -383,6 +407,7 @@ class PoseEstimator:
         self.narrow_scale = narrow_scale
         self.refine_scale_steps = refine_scale_steps
         self.interpolate_alignment = interpolate_alignment
+        self.morph_views = morph_views
         self.position_sigma = position_sigma
         self.orientation_kappa = orientation_kappa
         self.viewpoint_bandwidth_deg = viewpoint_bandwidth_deg
@@ -575,6 +600,7 @@ class PoseEstimator:
 
         feats, centres, sizes = [], np.zeros((k, 2)), np.zeros((k, 2))
         appearance = _Appearance(box_arr)
+        crops = ViewCrops() if self.morph_views else None
         for i, image in enumerate(images):
             label = str(image) if isinstance(image, (str, Path)) else f"images[{i}]"
             img = _load(image, name=label)
@@ -612,6 +638,8 @@ class PoseEstimator:
                                  "or lower edge_thresholds")
             feats.append(f)
             appearance.add(img, box)
+            if crops is not None:
+                crops.add(img, box)
             centres[i] = [x + (w - 1) / 2.0, y + (h - 1) / 2.0]
             sizes[i] = [w, h]
             if progress is not None:
@@ -630,6 +658,12 @@ class PoseEstimator:
                             box_sizes=sizes, instances=inst_index, instance_names=instance_names,
                             reference_size=reference, category=category,
                             instance_size=inst_size.tolist())
+        if crops is not None:
+            neighbours = turntable_neighbours(model.view_azimuth, model.view_elevation,
+                                              model.view_instance)
+            model = replace(model, view_neighbour=neighbours, shift=view_shifts(
+                feats, crops, neighbours, centers=centres, scales=scales,
+                inplanes=pose_arr[:, 2]))
         self.viewpoint_kappa_ = self._viewpoint_kappa(model)
         self.descriptor_window_, self.view_descriptors_, self.objectness_ = \
             appearance.finish(sizes)
@@ -666,7 +700,9 @@ class PoseEstimator:
         cosines = np.clip(d @ d.T, -1.0, 1.0)
         np.fill_diagonal(cosines, -1.0)
         spacing = float(np.median(np.arccos(cosines.max(axis=1))))
-        return kappa_for_width(spacing / 2.0)
+        # Morphed features move with the object, so a wider kernel blends
+        # neighbours without blurring them (docs/TUNING.md, "Morphing").
+        return kappa_for_width(spacing * (MORPH_BANDWIDTH if model.shift is not None else 0.5))
 
     def _check_fitted(self) -> PoseModel:
         model = getattr(self, "model_", None)

@@ -19,6 +19,7 @@ from numpy.typing import NDArray
 from posevote.geometry import viewing_direction
 from posevote.inference.voting import TestMaps, search_translations
 from posevote.model.density import PoseModel, viewpoint_weights
+from posevote.model.morph import morphed_positions
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -130,7 +131,8 @@ def viewpoint_features(model: PoseModel, azimuth: float, elevation: float, *,
     """Collect the training features of the views near a viewpoint (Eq. 1 at w1).
 
     Training views whose pose kernel K1 is below ``k1_cutoff`` are left out
-    (the nearest view always takes part).
+    (the nearest view always takes part). With a morphed model (``model.shift``)
+    the features move toward the viewpoint (:mod:`posevote.model.morph`).
     """
     k1 = viewpoint_weights(model, azimuth, elevation, kappa=viewpoint_kappa)
     views = np.flatnonzero(k1 >= k1_cutoff)
@@ -139,7 +141,11 @@ def viewpoint_features(model: PoseModel, azimuth: float, elevation: float, *,
     idx = np.flatnonzero(np.isin(model.view, views))
     w = k1[model.view[idx]] * (model.weight[idx] if use_weights else 1.0)
     total = w.sum()
-    return ViewpointFeatures(xy=model.xy[idx], theta=model.theta[idx],
+    xy = model.xy[idx]
+    if model.shift is not None and model.view_neighbour is not None:
+        xy = morphed_positions(xy, model.shift[idx], model.view[idx], azimuth,
+                               model.view_azimuth, model.view_neighbour)
+    return ViewpointFeatures(xy=xy, theta=model.theta[idx],
                              weight=w / total if total > 0 else w,
                              box=np.average(model.view_box[views], axis=0, weights=k1[views]))
 

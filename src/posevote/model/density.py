@@ -49,6 +49,12 @@ class PoseModel:
         Each instance's median training box height over ``reference_size``:
         the scale at which the model matches the instance at its training
         size (empty: all 1).
+    shift : ndarray, shape (M, 2, 2), or None
+        Each feature's displacement toward the next and the previous view
+        of its turntable (:mod:`posevote.model.morph`); None: not measured.
+    view_neighbour : ndarray of int, shape (K, 2), or None
+        Each view's next and previous view on its turntable (-1: none);
+        present with ``shift``.
     """
 
     xy: NDArray[np.float64]
@@ -63,6 +69,8 @@ class PoseModel:
     reference_size: float
     category: str = ""
     instance_size: tuple[float, ...] = ()
+    shift: NDArray[np.float64] | None = None
+    view_neighbour: NDArray[np.int64] | None = None
 
     def size_of(self, instance: int) -> float:
         """The training size of an instance relative to the reference (1.0 if unknown)."""
@@ -121,7 +129,11 @@ class PoseModel:
                                              dtype=np.int64),
                       instance_names=tuple(self.instance_names[i] for i in chosen),
                       instance_size=tuple(self.instance_size[i] for i in chosen)
-                      if self.instance_size else ())
+                      if self.instance_size else (),
+                      shift=None if self.shift is None else self.shift[keep],
+                      view_neighbour=None if self.view_neighbour is None else np.where(
+                          self.view_neighbour[views] >= 0,
+                          local[np.maximum(self.view_neighbour[views], 0)], -1))
         return PoseModel(**fields)
 
     def with_weights(self, weight: NDArray[np.float64]) -> PoseModel:

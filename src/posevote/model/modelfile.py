@@ -12,7 +12,9 @@ descriptor per training view, for ``verify_candidates``) and ``objectness``
 array (the verification's classifier) are additions that version-2 readers
 ignore, so they keep the version number; so is the header's optional
 ``instance_size`` (each instance's training size relative to the reference,
-for ``instance_search``; files without it read as all 1).
+for ``instance_search``; files without it read as all 1), and the optional
+``shift`` and ``view_neighbour`` arrays (the morphing between turntable
+views, ``morph_views``; files without them are not morphed).
 """
 
 from __future__ import annotations
@@ -32,6 +34,7 @@ FORMAT_VERSION = 2
 
 _FEATURE_ARRAYS = ("xy", "theta", "view", "weight")
 _ARRAYS = (*_FEATURE_ARRAYS, "view_azimuth", "view_elevation", "view_box", "view_instance")
+_MORPH_ARRAYS = ("shift", "view_neighbour")
 
 
 def save_model(path: str | Path, model: PoseModel, params: dict[str, Any],
@@ -68,8 +71,13 @@ def save_model(path: str | Path, model: PoseModel, params: dict[str, Any],
         "extra": extra or {},
     }
     arrays = {name: getattr(model, name) for name in _ARRAYS}
+    for name in _MORPH_ARRAYS:
+        if getattr(model, name) is not None:
+            arrays[name] = getattr(model, name)
     if full_model is not None:
         arrays.update({f"full_{name}": getattr(full_model, name) for name in _FEATURE_ARRAYS})
+        if full_model.shift is not None:
+            arrays["full_shift"] = full_model.shift
     if descriptors is not None:
         arrays["view_descriptor"] = np.asarray(descriptors, dtype=np.float32)
     if objectness is not None:
@@ -129,8 +137,13 @@ def load_model(path: str | Path
                     f"{path}: model format version {version} is newer than this posevote reads "
                     f"(up to {FORMAT_VERSION}); upgrade posevote or retrain the model")
             arrays = {name: data[name] for name in _ARRAYS}
+            arrays.update({name: data[name] for name in _MORPH_ARRAYS if name in data.files})
             full = ({name: data[f"full_{name}"] for name in _FEATURE_ARRAYS}
                     if "full_xy" in data.files else None)
+            if full is not None:
+                morphed = "full_shift" in data.files and "shift" in arrays
+                full["shift"] = data["full_shift"] if morphed else None
+                full["view_neighbour"] = arrays["view_neighbour"] if morphed else None
             descriptors = (data["view_descriptor"].astype(np.float32)
                            if "view_descriptor" in data.files else None)
             objectness = (data["objectness"].astype(np.float64)
@@ -163,6 +176,11 @@ def _build(path: Path, arrays: dict[str, np.ndarray], header: dict[str, Any]) ->
                  and arrays["weight"].shape == (m,) and arrays["view_box"].shape == (k, 2)
                  and arrays["view_elevation"].shape == (k,) and arrays["view_instance"].shape == (k,)
                  and (m == 0 or (arrays["view"].min() >= 0 and arrays["view"].max() < k)))
+    shift, neighbour = arrays.get("shift"), arrays.get("view_neighbour")
+    if (shift is None) != (neighbour is None) or (shift is not None and neighbour is not None and not (
+            shift.shape == (m, 2, 2) and neighbour.shape == (k, 2)
+            and np.all(np.isfinite(shift)) and np.all((neighbour >= -1) & (neighbour < k)))):
+        shapes_ok = False
     if not shapes_ok:
         raise ValueError(f"{path}: corrupt model file (inconsistent array shapes)")
     names = tuple(header.get("instance_names", []))
@@ -182,4 +200,6 @@ def _build(path: Path, arrays: dict[str, np.ndarray], header: dict[str, Any]) ->
         reference_size=float(header.get("reference_size", 1.0)),
         category=str(header.get("category", "")),
         instance_size=tuple(float(f) for f in size),
+        shift=None if shift is None else shift.astype(np.float64),
+        view_neighbour=None if neighbour is None else neighbour.astype(np.int64),
     )

@@ -201,4 +201,8 @@ def prune_model(model: PoseModel, preset: PruningPreset, *, position_sigma: floa
     weight = np.bincount(labels, weights=model.weight, minlength=n)
     fields = {k: getattr(model, k) for k in model.__dataclass_fields__}
     fields.update(xy=xy, theta=theta, view=view, weight=weight)
+    if model.shift is not None:
+        # A centre moves as its members do (they come from nearby views).
+        fields["shift"] = np.stack([np.column_stack([mean(model.shift[:, c, d]) for d in (0, 1)])
+                                    for c in (0, 1)], axis=1)
     return PoseModel(**fields)

@@ -1,0 +1,213 @@
+"""Feature morphing between neighbouring turntable views (beyond the paper).
+
+The paper's density psi blends the features of the training views near a
+viewpoint, each feature staying where it was in its own view. Between two
+training views no blend of them looks like the object does there: the edges
+of a rotating object move, and the blend of two misaligned copies is best
+explained at either training view, which pulls estimates toward them and
+lets the in-plane angle, scale and position lean toward one neighbour.
+
+Here every training feature also carries where it moves to in each
+neighbouring view of the same instance on the turntable (the view next in
+azimuth, either way), measured by dense optical flow between the two
+training images (OpenCV's DIS flow). Between views a feature is moved along
+that displacement in proportion to the azimuth travelled toward the
+neighbour (:func:`morphed_positions`), so that the blend at any azimuth is a
+plausible picture of the object there.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from posevote.features.edges import EdgeFeatures, normalize_features
+from posevote.geometry import angle_difference
+
+#: Neighbouring views farther apart than this (radians) are not morphed into
+#: each other: the flow between them would not be trusted.
+MAX_GAP = np.radians(45.0)
+
+
+def turntable_neighbours(view_azimuth: NDArray[np.float64], view_elevation: NDArray[np.float64],
+                         view_instance: NDArray[np.int64], *, max_gap: float = MAX_GAP
+                         ) -> NDArray[np.int64]:
+    """The next and previous view in azimuth of each view, within its instance.
+
+    Parameters
+    ----------
+    view_azimuth, view_elevation : ndarray, shape (K,)
+        Viewpoints, radians.
+    view_instance : ndarray of int, shape (K,)
+        Instance of each view.
+    max_gap : float, optional
+        Neighbours farther apart than this (radians) are not paired.
+
+    Returns
+    -------
+    ndarray of int, shape (K, 2)
+        Column 0 the next view (increasing azimuth), column 1 the previous
+        one; -1 where there is none. Instances whose views do not share one
+        elevation (not a turntable) get none.
+    """
+    k = len(view_azimuth)
+    out = np.full((k, 2), -1, dtype=np.int64)
+    for inst in np.unique(view_instance):
+        views = np.flatnonzero(view_instance == inst)
+        if len(views) < 2 or np.ptp(view_elevation[views]) > 1e-6:
+            continue
+        order = views[np.argsort(np.mod(view_azimuth[views], 2 * np.pi), kind="stable")]
+        for i, v in enumerate(order):
+            for col, step in ((0, 1), (1, -1)):
+                n = order[(i + step) % len(order)]
+                gap = abs(float(angle_difference(view_azimuth[n], view_azimuth[v])))
+                if n != v and 1e-9 < gap <= max_gap:
+                    out[v, col] = n
+    return out
+
+
+def _window(box: NDArray[np.float64], shape: tuple[int, int], margin: float
+            ) -> tuple[int, int, int, int]:
+    x, y, w, h = box
+    x0 = int(max(np.floor(x - margin * w), 0))
+    y0 = int(max(np.floor(y - margin * h), 0))
+    x1 = int(min(np.ceil(x + w + margin * w), shape[1]))
+    y1 = int(min(np.ceil(y + h + margin * h), shape[0]))
+    return x0, y0, x1, y1
+
+
+class ViewCrops:
+    """Grey crops of the training views around their boxes, for the flow.
+
+    Parameters
+    ----------
+    margin : float, optional
+        Each crop is the box grown by this fraction of its size on every side.
+    """
+
+    def __init__(self, margin: float = 0.5) -> None:
+        self.margin = margin
+        self.crops: list[NDArray[np.uint8]] = []
+        self.origins: list[tuple[int, int]] = []
+
+    def add(self, image: NDArray[np.float64], box: NDArray[np.float64]) -> None:
+        """Keep the crop of one view (image in [0, 1], box ``(x, y, w, h)``)."""
+        x0, y0, x1, y1 = _window(np.asarray(box, dtype=np.float64), image.shape, self.margin)
+        self.crops.append(np.round(np.clip(image[y0:y1, x0:x1], 0, 1) * 255).astype(np.uint8))
+        self.origins.append((x0, y0))
+
+    def flow(self, a: int, b: int) -> tuple[NDArray[np.float32], tuple[int, int]]:
+        """Dense flow from view ``a`` to view ``b`` on a canvas holding both crops.
+
+        Returns the flow, shape (H, W, 2), and the canvas origin in image pixels.
+        """
+        (ax, ay), (bx, by) = self.origins[a], self.origins[b]
+        ca, cb = self.crops[a], self.crops[b]
+        x0, y0 = min(ax, bx), min(ay, by)
+        x1 = max(ax + ca.shape[1], bx + cb.shape[1])
+        y1 = max(ay + ca.shape[0], by + cb.shape[0])
+        canvas_a = np.zeros((y1 - y0, x1 - x0), dtype=np.uint8)
+        canvas_b = np.zeros_like(canvas_a)
+        canvas_a[ay - y0:ay - y0 + ca.shape[0], ax - x0:ax - x0 + ca.shape[1]] = ca
+        canvas_b[by - y0:by - y0 + cb.shape[0], bx - x0:bx - x0 + cb.shape[1]] = cb
+        dis = cv2.DISOpticalFlow_create(  # type: ignore[attr-defined]
+            cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
+        return dis.calc(canvas_a, canvas_b, None), (x0, y0)
+
+
+def _sample(flow: NDArray[np.float32], xy: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The flow at sub-pixel positions (bilinear, clamped at the border)."""
+    h, w = flow.shape[:2]
+    x = np.clip(xy[:, 0], 0, w - 1)
+    y = np.clip(xy[:, 1], 0, h - 1)
+    x0 = np.minimum(np.floor(x).astype(int), w - 2) if w > 1 else np.zeros(len(x), int)
+    y0 = np.minimum(np.floor(y).astype(int), h - 2) if h > 1 else np.zeros(len(y), int)
+    fx, fy = (x - x0)[:, None], (y - y0)[:, None]
+    x1, y1 = np.minimum(x0 + 1, w - 1), np.minimum(y0 + 1, h - 1)
+    return ((1 - fy) * ((1 - fx) * flow[y0, x0] + fx * flow[y0, x1])
+            + fy * ((1 - fx) * flow[y1, x0] + fx * flow[y1, x1])).astype(np.float64)
+
+
+def view_shifts(view_features: Sequence[EdgeFeatures], crops: ViewCrops,
+                neighbours: NDArray[np.int64], *, centers: NDArray[np.float64],
+                scales: NDArray[np.float64], inplanes: NDArray[np.float64]
+                ) -> NDArray[np.float64]:
+    """Where each training feature moves to in its view's two neighbours.
+
+    Parameters
+    ----------
+    view_features : sequence of EdgeFeatures
+        Each view's features in image pixels (as given to
+        :func:`posevote.model.density.build_model`, in the same order).
+    crops : ViewCrops
+        The views' crops, in the same order.
+    neighbours : ndarray of int, shape (K, 2)
+        From :func:`turntable_neighbours`.
+    centers, scales, inplanes
+        Each view's reference point, scale and in-plane angle, as for
+        :func:`posevote.model.density.build_model`.
+
+    Returns
+    -------
+    ndarray, shape (M, 2, 2)
+        For every model feature (views concatenated in order), its
+        displacement in model units toward the next view (``[:, 0]``) and
+        the previous one (``[:, 1]``); zero where a view has no neighbour.
+    """
+    out = []
+    for k, feats in enumerate(view_features):
+        here = normalize_features(feats, center=centers[k], scale=float(scales[k]),
+                                  inplane=float(inplanes[k])).xy
+        shift = np.zeros((len(feats), 2, 2))
+        for col in (0, 1):
+            n = int(neighbours[k, col])
+            if n < 0 or len(feats) == 0:
+                continue
+            flow, origin = crops.flow(k, n)
+            moved = feats.xy + _sample(flow, feats.xy - np.asarray(origin, dtype=np.float64))
+            there = normalize_features(EdgeFeatures(xy=moved, theta=feats.theta),
+                                       center=centers[n], scale=float(scales[n]),
+                                       inplane=float(inplanes[n])).xy
+            shift[:, col] = there - here
+        out.append(shift)
+    return np.concatenate(out) if out else np.zeros((0, 2, 2))
+
+
+def morphed_positions(xy: NDArray[np.float64], shift: NDArray[np.float64],
+                      view: NDArray[np.int64], azimuth: float,
+                      view_azimuth: NDArray[np.float64], neighbours: NDArray[np.int64]
+                      ) -> NDArray[np.float64]:
+    """Feature positions moved toward the viewpoint ``azimuth``.
+
+    A feature of view ``k`` at ``azimuth`` between ``k`` and its neighbour
+    ``n`` moves by the fraction ``(azimuth - az_k) / (az_n - az_k)`` (at most
+    1) of its displacement toward ``n``.
+
+    Parameters
+    ----------
+    xy : ndarray, shape (N, 2)
+        Model positions of the features.
+    shift : ndarray, shape (N, 2, 2)
+        Their displacements (:func:`view_shifts`).
+    view : ndarray of int, shape (N,)
+        Their views.
+    azimuth : float
+        The viewpoint, radians.
+    view_azimuth : ndarray, shape (K,)
+        Azimuth of every view.
+    neighbours : ndarray of int, shape (K, 2)
+        From :func:`turntable_neighbours`.
+
+    Returns
+    -------
+    ndarray, shape (N, 2)
+    """
+    delta = angle_difference(azimuth, view_azimuth[view])
+    col = np.where(delta >= 0, 0, 1)
+    n = neighbours[view, col]
+    gap = np.abs(angle_difference(view_azimuth[np.maximum(n, 0)], view_azimuth[view]))
+    frac = np.where(n >= 0, np.clip(np.abs(delta) / np.maximum(gap, 1e-12), 0.0, 1.0), 0.0)
+    return xy + frac[:, None] * shift[np.arange(len(view)), col]
