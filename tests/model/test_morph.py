@@ -140,3 +140,26 @@ def test_a_morphed_model_blends_its_views_wider(synthetic_training):
     assert plain.viewpoint_kappa_ == pytest.approx(kappa_for_width(0.5 * spacing), rel=1e-6)
     assert morphed.viewpoint_kappa_ == pytest.approx(kappa_for_width(MORPH_BANDWIDTH * spacing),
                                                      rel=1e-6)
+
+
+def test_a_pruned_morphed_category_model_round_trips(tmp_path, draw):
+    # Two instances on one turntable each; the pruned centres move as their
+    # members do, and the file keeps both the pruned and the full shifts.
+    az = np.radians(np.arange(0, 360, 30))
+    images = [draw(a) for a in az] + [draw(a, scale=0.9) for a in az]
+    boxes = np.array([object_box(im) for im in images])
+    names = ["a"] * len(az) + ["b"] * len(az)
+    est = PoseEstimator(morph_views=True, prune="moderate").fit(
+        images, np.r_[az, az], boxes=boxes, instances=names)
+    assert est.model_.shift.shape == (est.model_.n_features, 2, 2)
+    assert est.full_model_.shift.shape == (est.full_model_.n_features, 2, 2)
+    # Views are paired within their own instance only.
+    nb = est.full_model_.view_neighbour
+    inst = est.full_model_.view_instance
+    assert np.all(inst[nb[nb >= 0]] == inst[np.nonzero(nb >= 0)[0]])
+    sub = est.full_model_.instance_model(1)
+    assert sub.view_neighbour.min() >= 0 and sub.view_neighbour.max() < sub.n_views
+    est.save(tmp_path / "cat.npz")
+    loaded = PoseEstimator.load(tmp_path / "cat.npz")
+    assert np.array_equal(loaded.model_.shift, est.model_.shift)
+    assert np.array_equal(loaded.full_model_.shift, est.full_model_.shift)
