@@ -177,10 +177,12 @@ def _build(path: Path, arrays: dict[str, np.ndarray], header: dict[str, Any]) ->
                  and arrays["view_elevation"].shape == (k,) and arrays["view_instance"].shape == (k,)
                  and (m == 0 or (arrays["view"].min() >= 0 and arrays["view"].max() < k)))
     shift, neighbour = arrays.get("shift"), arrays.get("view_neighbour")
-    if (shift is None) != (neighbour is None) or (shift is not None and neighbour is not None and not (
-            shift.shape == (m, 2, 2) and neighbour.shape == (k, 2)
-            and np.all(np.isfinite(shift)) and np.all((neighbour >= -1) & (neighbour < k)))):
-        shapes_ok = False
+    if shift is not None or neighbour is not None:
+        # The morphing arrays come together, one displacement pair per feature.
+        shapes_ok = (shapes_ok and shift is not None and neighbour is not None
+                     and shift.shape == (m, 2, 2) and neighbour.shape == (k, 2)
+                     and bool(np.all(np.isfinite(shift)))
+                     and bool(np.all((neighbour >= -1) & (neighbour < k))))
     if not shapes_ok:
         raise ValueError(f"{path}: corrupt model file (inconsistent array shapes)")
     names = tuple(header.get("instance_names", []))
