@@ -120,15 +120,10 @@ class ViewCrops:
 
 def _sample(flow: NDArray[np.float32], xy: NDArray[np.float64]) -> NDArray[np.float64]:
     """The flow at sub-pixel positions (bilinear, clamped at the border)."""
-    h, w = flow.shape[:2]
-    x = np.clip(xy[:, 0], 0, w - 1)
-    y = np.clip(xy[:, 1], 0, h - 1)
-    x0 = np.minimum(np.floor(x).astype(int), w - 2) if w > 1 else np.zeros(len(x), int)
-    y0 = np.minimum(np.floor(y).astype(int), h - 2) if h > 1 else np.zeros(len(y), int)
-    fx, fy = (x - x0)[:, None], (y - y0)[:, None]
-    x1, y1 = np.minimum(x0 + 1, w - 1), np.minimum(y0 + 1, h - 1)
-    return ((1 - fy) * ((1 - fx) * flow[y0, x0] + fx * flow[y0, x1])
-            + fy * ((1 - fx) * flow[y1, x0] + fx * flow[y1, x1])).astype(np.float64)
+    xs = np.ascontiguousarray(xy[:, :1], dtype=np.float32)
+    ys = np.ascontiguousarray(xy[:, 1:], dtype=np.float32)
+    return cv2.remap(flow, xs, ys, cv2.INTER_LINEAR,
+                     borderMode=cv2.BORDER_REPLICATE).reshape(-1, 2).astype(np.float64)
 
 
 def view_shifts(view_features: Sequence[EdgeFeatures], crops: ViewCrops,
