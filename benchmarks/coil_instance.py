@@ -104,6 +104,14 @@ def run_split(obj: int, data: str, train_az: list[int], test_az: list[int], clut
     test = read_coil(data, objects=[obj], azimuths_deg=test_az)
     period = np.pi if obj in HALF_TURN else 2 * np.pi
     train_images = train.load_images()
+    images = test.load_images()
+    truth_pos = None
+    if clutter:
+        rng = np.random.default_rng(seed + obj)
+        pasted = [paste_on_clutter(img, box, rng=rng) for img, box in zip(images, test.boxes,
+                                                                          strict=True)]
+        images = [p.image for p in pasted]
+        truth_pos = np.array([p.position for p in pasted])
     models: dict[tuple, PoseEstimator] = {}
     train_s: list[float] = []
 
@@ -122,14 +130,6 @@ def run_split(obj: int, data: str, train_az: list[int], test_az: list[int], clut
             models[key].estimate(images[0])  # compile once before timing
         return models[key]
 
-    images = test.load_images()
-    truth_pos = None
-    if clutter:
-        rng = np.random.default_rng(seed + obj)
-        pasted = [paste_on_clutter(img, box, rng=rng) for img, box in zip(images, test.boxes,
-                                                                          strict=True)]
-        images = [p.image for p in pasted]
-        truth_pos = np.array([p.position for p in pasted])
     out: dict = {"object": obj}
     for row in rows:
         est = model_for(row)
