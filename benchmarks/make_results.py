@@ -43,6 +43,10 @@ other 54; boxes and flat bottles scored on the half circle.
 - The same views pasted at a random position, scale 0.7-1.3 and in-plane
   angle ±30° on cluttered photographs with 20% of the object hidden:
   [`results/coil_instance_clutter.md`](results/coil_instance_clutter.md)
+
+One estimate with its viewpoints probed by 1 or 2 threads (`n_jobs`, the same
+estimate either way): [`results/time_threads.md`](results/time_threads.md)
+(`python benchmarks/time_threads.py --markdown docs/results/time_threads.md`).
 """
 
 PRUNING = """

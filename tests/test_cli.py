@@ -53,6 +53,8 @@ def test_estimate_plain_text_and_weights(model_file, test_image, tmp_path):
     runner = CliRunner()
     result = runner.invoke(cli, ["estimate", str(model_file), str(test_image)])
     assert result.exit_code == 0 and result.output.startswith("azimuth")
+    threaded = runner.invoke(cli, ["estimate", str(model_file), str(test_image), "--threads", "2"])
+    assert threaded.exit_code == 0 and threaded.output == result.output
     result = runner.invoke(cli, ["weights", str(model_file), "-o", str(tmp_path / "w.png")])
     assert result.exit_code == 0 and (tmp_path / "w.png").is_file()
 
@@ -95,6 +97,8 @@ def test_usage_errors(model_file, test_image):
     runner = CliRunner()
     assert runner.invoke(cli, ["estimate", str(model_file), str(test_image), "--bogus"]
                          ).exit_code == 2
+    result = runner.invoke(cli, ["estimate", str(model_file), str(test_image), "--threads", "0"])
+    assert result.exit_code == 2 and "--threads" in result.output
     result = runner.invoke(cli, ["train", "x", "-o", "y", "--param", "nonsense=1"])
     assert result.exit_code == 2 and "unknown estimator parameter" in result.output
     result = runner.invoke(cli, ["train", "x", "-o", "y", "--layout", "coil"])

@@ -36,6 +36,18 @@ def test_same_input_same_output(fitted_estimator, draw):
     assert a.best == b.best and a.modes == b.modes
 
 
+def test_threads_give_the_same_estimate(synthetic_training, draw):
+    # Threads only change how many viewpoints are probed at once; the per-scale
+    # maps (object_kernel) and the local refinement take the same path.
+    images, az, boxes = synthetic_training
+    est = PoseEstimator(object_kernel=True, chance_correction=True, local_refinement=True,
+                        scale_steps=3).fit(images, az, boxes=boxes)
+    img = draw(np.radians(143.0))
+    one = est.estimate(img)
+    two = est.set_params(n_jobs=2).estimate(img)
+    assert one.found and two.best == one.best and two.modes == one.modes
+
+
 def test_blank_image_is_not_found(fitted_estimator):
     result = fitted_estimator.estimate(np.zeros((64, 64)))
     assert not result.found and result.best is None and result.modes == ()
@@ -83,6 +95,7 @@ def test_unfitted_raises():
         ({"verify_margin": 5.0}, "verify_margin must be in"),
         ({"verify_overlap": 1.0}, "verify_overlap must be in"),
         ({"verify_shortlist": 0}, "verify_shortlist must be an integer >= 1"),
+        ({"n_jobs": 0}, "n_jobs must be an integer >= 1"),
     ],
 )
 def test_bad_parameters(synthetic_training, kwargs, message):

@@ -343,6 +343,12 @@ class PoseEstimator:
         Modes reported per image.
     min_score : float, default 0.0
         Below this best score the estimate is "not found".
+    n_jobs : int, default 1
+        Threads that probe viewpoints at once during an estimate (the
+        search kernels release the GIL): the time of one estimate on a
+        machine with several cores, not its result, which is the same for
+        every value. The benchmarks and protocols run one process per core
+        with 1 (``benchmarks/time_threads.py`` measures the speed-up).
     """
 
     def __init__(
@@ -397,6 +403,7 @@ class PoseEstimator:
         verify_overlap: float = 0.0,
         max_modes: int = 3,
         min_score: float = 0.0,
+        n_jobs: int = 1,
     ) -> None:
         self.weights = weights
         self.fitting = fitting
@@ -447,6 +454,7 @@ class PoseEstimator:
         self.verify_overlap = verify_overlap
         self.max_modes = max_modes
         self.min_score = min_score
+        self.n_jobs = n_jobs
 
     # -- scikit-learn style parameter access ------------------------------------
     def get_params(self) -> dict[str, Any]:
@@ -472,7 +480,8 @@ class PoseEstimator:
             if not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be a positive number, got {value!r}")
         for name in ("viewpoint_subdivisions", "scale_steps", "max_train_features", "max_modes",
-                     "vote_candidates", "recognition_modes", "refine_modes", "verify_shortlist"):
+                     "vote_candidates", "recognition_modes", "refine_modes", "verify_shortlist",
+                     "n_jobs"):
             value = getattr(self, name)
             if not (isinstance(value, (int, np.integer)) and value >= 1):
                 raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
@@ -802,7 +811,8 @@ class PoseEstimator:
                            cell=self.vote_cell, max_voters=self.max_voters,
                            max_features=self.max_search_features,
                            n_candidates=self.vote_candidates,
-                           chance_correction=self.chance_correction, progress=progress)
+                           chance_correction=self.chance_correction, progress=progress,
+                           n_threads=self.n_jobs)
 
     def probe(self, image: ImageLike, *, progress: Callable[[int], None] | None = None
               ) -> tuple[ProbeSet, EdgeFeatures]:

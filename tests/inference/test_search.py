@@ -52,3 +52,23 @@ def test_probe_boxes_are_the_viewpoint_box_at_each_scale_around_each_translation
     assert boxes.shape == (2, 1, 2, 4)
     assert np.allclose(boxes[1, 0, 1], (30.0, 32.0, 40.0, 16.0))
     assert np.allclose(boxes[0, 0, 0], (-5.0, -3.0, 10.0, 6.0))
+
+
+def test_threads_give_the_same_probes(fitted_estimator, draw):
+    from posevote.inference import probe_poses
+
+    est = fitted_estimator
+    feats, shape = est._features(draw(np.radians(130)))
+    maps = est._maps(feats, shape, sigma=3.0)
+    az, el = viewpoint_grid(est.model_)
+    kw = dict(azimuths=az, elevations=el, inplanes=np.radians([-10.0, 0.0, 10.0]),
+              scales=np.array([0.9, 1.0, 1.1]), viewpoint_kappa=est.viewpoint_kappa_)
+    calls = []
+    one = probe_poses(est.model_, maps, **kw)
+    three = probe_poses(est.model_, maps, n_threads=3, progress=calls.append, **kw)
+    assert one.score.any() and len(calls) == len(az)
+    np.testing.assert_array_equal(three.score, one.score)
+    np.testing.assert_array_equal(three.translation, one.translation)
+    np.testing.assert_array_equal(three.box, one.box)
+    with pytest.raises(ValueError, match="n_threads must be an integer >= 1"):
+        probe_poses(est.model_, maps, n_threads=0, **kw)

@@ -10,6 +10,7 @@ set of (pose, score) pairs approximating p(w) at discrete probes.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -167,6 +168,7 @@ def probe_poses(
     max_features: int | None = None,
     chance_correction: bool = False,
     progress: Callable[[int], None] | None = None,
+    n_threads: int = 1,
 ) -> ProbeSet:
     """Evaluate p(w) at every probe of the grid (Fig. 2).
 
@@ -210,11 +212,17 @@ def probe_poses(
         object units, so without it large scales win on clutter.
     progress : callable, optional
         Called with 1 after each viewpoint.
+    n_threads : int, optional
+        Viewpoints probed at once, each in a thread of its own (the search
+        kernels release the GIL). Every viewpoint is computed on its own
+        and written to its own rows, so the result does not depend on it.
 
     Returns
     -------
     ProbeSet
     """
+    if not (isinstance(n_threads, (int, np.integer)) and n_threads >= 1):
+        raise ValueError(f"n_threads must be an integer >= 1, got {n_threads!r}")
     n_v = len(azimuths)
     scales = np.asarray(scales, dtype=np.float64)
     per_scale: list[TestMaps] = [] if isinstance(maps, TestMaps) else list(maps)
@@ -224,14 +232,16 @@ def probe_poses(
     score = np.zeros((n_v, len(inplanes), len(scales)))
     translation = np.zeros((n_v, len(inplanes), len(scales), 2))
     box = np.zeros((n_v, 2))
-    for v in range(n_v):
+
+    def probe_view(v: int) -> None:
+        """Probe viewpoint ``v``, writing its rows of ``box``, ``score`` and ``translation``."""
         feats = viewpoint_features(model, azimuths[v], elevations[v],
                                    viewpoint_kappa=viewpoint_kappa, use_weights=use_weights,
                                    k1_cutoff=k1_cutoff)
         box[v] = feats.box
         if feats.weight.sum() <= 0:
-            pass
-        elif isinstance(maps, TestMaps):
+            return
+        if isinstance(maps, TestMaps):
             score[v], translation[v] = search_translations(
                 maps, feats.xy, feats.theta, feats.weight, inplanes=inplanes, scales=scales,
                 cell=cell, n_candidates=n_candidates, max_voters=max_voters,
@@ -246,8 +256,17 @@ def probe_poses(
                     c = min(scale_maps.chance, 0.99)
                     sc = np.maximum(sc - c, 0.0) / (1.0 - c)
                 score[v, :, k], translation[v, :, k] = sc[:, 0], tr[:, 0] * factor
-        if progress is not None:
-            progress(1)
+
+    if n_threads == 1 or n_v < 2:
+        for v in range(n_v):
+            probe_view(v)
+            if progress is not None:
+                progress(1)
+    else:
+        with ThreadPoolExecutor(max_workers=min(int(n_threads), n_v)) as pool:
+            for _ in pool.map(probe_view, range(n_v)):
+                if progress is not None:
+                    progress(1)
     return ProbeSet(azimuth=np.asarray(azimuths, dtype=float),
                     elevation=np.asarray(elevations, dtype=float),
                     inplane=np.asarray(inplanes, dtype=float), scale=np.asarray(scales, dtype=float),
