@@ -1,0 +1,153 @@
+"""Study: a learned box regression, then the pose from the appearance of the regressed box.
+
+Reads the results folder of an epfl-cv run of the main row (its
+``results.csv`` and the models it saved), for example::
+
+    posevote evaluate epfl-cv --data ../shared/data --jobs 2 --every 8 \\
+        --rows "weights + fitting" --out /tmp/epfl-cv-8
+
+For each fold, boxes jittered around the true box of the fold's training
+frames (``--jitter`` of the size in position and log-size, half that in
+log-aspect; 8 per frame) give the HOG descriptor of the verification
+(:func:`posevote.inference.verification.box_descriptor`, the model's
+window) and the offsets back to the true box; a ridge regression per
+azimuth range (``--bins``, each fitted on the training frames within one
+bin width of its centre, chosen at test time by the estimate's azimuth)
+maps one to the other. Each test frame's final box is regressed
+``--steps`` times; then the training view whose descriptor is nearest to
+the regressed box's, among those within ``--window-deg`` of the estimate,
+gives the azimuth. Prints the median IoU after each step and the errors.
+Training frames only train; cars 11-20 are never read. A study (docs/TUNING.md,
+stop 18), not part of the estimator.
+
+Usage::
+
+    python benchmarks/epfl_box_regression.py --results /tmp/epfl-cv-8 [--alpha 100]
+        [--bins 8] [--window-deg 45] [--steps 3] [--jitter 0.15]
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import sys
+from pathlib import Path
+
+import numpy as np
+from sklearn.linear_model import Ridge
+
+from posevote import PoseEstimator
+from posevote.data import read_image
+from posevote.evaluation.protocols import epfl_cv
+from posevote.geometry import box_iou
+from posevote.inference.verification import box_descriptor
+
+ROW = "weights + fitting"
+
+
+def jittered(box: tuple[float, ...], jitter: float, rng: np.random.Generator
+             ) -> tuple[float, float, float, float]:
+    """A box moved and resized at random around ``box``."""
+    x, y, w, h = box
+    size, aspect = np.exp(rng.uniform(-jitter, jitter)), np.exp(rng.uniform(-jitter, jitter) / 2)
+    nw, nh = w * size * aspect, h * size / aspect
+    cx = x + w / 2 + rng.uniform(-jitter, jitter) * w
+    cy = y + h / 2 + rng.uniform(-jitter, jitter) * h
+    return cx - nw / 2, cy - nh / 2, nw, nh
+
+
+def offsets(box: tuple[float, ...], truth: tuple[float, ...]) -> list[float]:
+    """Centre shift in box sizes and log-size ratios from ``box`` to ``truth``."""
+    x, y, w, h = box
+    tx, ty, tw, th = truth
+    return [(tx + tw / 2 - x - w / 2) / w, (ty + th / 2 - y - h / 2) / h,
+            float(np.log(tw / w)), float(np.log(th / h))]
+
+
+def moved(box: tuple[float, ...], d: np.ndarray) -> tuple[float, float, float, float]:
+    """``box`` moved by predicted :func:`offsets`."""
+    x, y, w, h = box
+    nw, nh = w * np.exp(d[2]), h * np.exp(d[3])
+    return x + w / 2 + d[0] * w - nw / 2, y + h / 2 + d[1] * h - nh / 2, nw, nh
+
+
+def circular_error_deg(a: float, b: float) -> float:
+    """Absolute difference of two azimuths, degrees, on the full circle."""
+    return abs((a - b + 180.0) % 360.0 - 180.0)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--results", type=Path, required=True)
+    parser.add_argument("--data", default=str(Path(__file__).resolve().parents[2] / "shared"
+                                              / "data"))
+    parser.add_argument("--alpha", type=float, default=100.0)
+    parser.add_argument("--bins", type=int, default=8)
+    parser.add_argument("--window-deg", type=float, default=45.0)
+    parser.add_argument("--steps", type=int, default=3)
+    parser.add_argument("--jitter", type=float, default=0.15)
+    args = parser.parse_args(argv)
+    with open(args.results / "results.csv", newline="") as f:
+        rows = [r for r in csv.DictReader(f) if r["row"] == ROW]
+    rng = np.random.default_rng(0)
+    width = 360.0 / args.bins
+    ious, errors, before = [], [], []
+    for split in epfl_cv(args.data).splits:
+        test_rows = [r for r in rows if r["split"] == split.name]
+        if not test_rows:
+            continue
+        key = split.name.replace("_to_", "-to-")
+        est = PoseEstimator.load(args.results / "models" / f"weights-fitting__{key}.npz")
+        window, views = est.descriptor_window_, est.view_descriptors_
+        view_az = np.degrees(est.full_model_.view_azimuth) % 360.0
+        x, y, az = [], [], []
+        for image, truth, pose in zip(split.train.images, split.train.boxes, split.train.poses,
+                                      strict=True):
+            img = read_image(image)
+            for _ in range(8):
+                box = jittered(tuple(truth), args.jitter, rng)
+                d = box_descriptor(img, box, window)
+                if d is not None:
+                    x.append(d)
+                    y.append(offsets(box, tuple(truth)))
+                    az.append(np.degrees(pose[0]) % 360.0)
+        x_arr, y_arr, az_arr = np.array(x), np.array(y), np.array(az)
+        regressions = []
+        for k in range(args.bins):
+            near = np.array([circular_error_deg(a, (k + 0.5) * width) <= width for a in az_arr])
+            regressions.append(Ridge(alpha=args.alpha).fit(x_arr[near], y_arr[near]))
+        for r in test_rows:
+            img = read_image(r["image"])
+            box = tuple(float(r[k]) for k in ("box_x", "box_y", "box_w", "box_h"))
+            truth = tuple(float(r[k]) for k in ("truth_box_x", "truth_box_y", "truth_box_w",
+                                                 "truth_box_h"))
+            estimate, true_az = float(r["estimate_deg"]), float(r["truth_deg"])
+            reg = regressions[int((estimate % 360.0) // width) % args.bins]
+            trail = [box_iou(box, truth)]
+            for _ in range(args.steps):
+                d = box_descriptor(img, box, window)
+                if d is None:
+                    break
+                box = moved(box, reg.predict(d[None])[0])
+                trail.append(box_iou(box, truth))
+            ious.append(trail + [trail[-1]] * (args.steps + 1 - len(trail)))
+            before.append(circular_error_deg(estimate, true_az))
+            d = box_descriptor(img, box, window)
+            near = np.flatnonzero([circular_error_deg(a, estimate) <= args.window_deg
+                                   for a in view_az])
+            if d is None or not len(near):
+                errors.append(before[-1])
+                continue
+            nearest = near[np.argmin(((views[near] - d) ** 2).sum(axis=1))]
+            errors.append(circular_error_deg(float(view_az[nearest]), true_az))
+    iou_arr = np.array(ious)
+    print("median IoU after each step:", " ".join(f"{v:.3f}" for v in np.median(iou_arr, axis=0)),
+          " found (IoU >= 0.5):", " ".join(f"{v:.1%}" for v in (iou_arr >= 0.5).mean(axis=0)))
+    for name, e in (("estimate", np.array(before)), ("regressed box, nearest view", np.array(errors))):
+        print(f"{name:28s} n {len(e)}  median {np.median(e):.2f}  mean {e.mean():.2f}  "
+              f"< 45: {100 * np.mean(e < 45):.1f}%")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
