@@ -48,6 +48,30 @@ def test_threads_give_the_same_estimate(synthetic_training, draw):
     assert one.found and two.best == one.best and two.modes == one.modes
 
 
+def test_appearance_refine_takes_the_nearest_training_view(synthetic_training, draw, tmp_path):
+    from posevote.data import object_box
+    from posevote.geometry import box_iou
+
+    images, az, boxes = synthetic_training
+    est = PoseEstimator(appearance_refine=True).fit(images, az, boxes=boxes)
+    assert est.box_regressor_.shape[1] == 4
+    img = draw(np.radians(110.0))
+    best = est.estimate(img).best
+    # The viewpoint is a training view's (110 degrees lies between 100 and 120),
+    # and the regressed box still holds the object.
+    assert np.min(np.abs(np.degrees(best.azimuth) - np.array([100.0, 120.0]))) < 1e-6
+    assert box_iou(best.box, object_box(img)) > 0.7
+    x, y, w, h = best.box
+    assert best.position == pytest.approx((x + (w - 1) / 2, y + (h - 1) / 2))
+    est.save(tmp_path / "m.npz")
+    again = PoseEstimator.load(tmp_path / "m.npz")
+    np.testing.assert_array_equal(again.box_regressor_, est.box_regressor_)
+    assert again.estimate(img).best == best
+    plain = PoseEstimator().fit(images[:4], az[:4], boxes=boxes[:4])
+    with pytest.raises(ValueError, match="appearance_refine needs the box regression"):
+        plain.set_params(appearance_refine=True).estimate(img)
+
+
 def test_blank_image_is_not_found(fitted_estimator):
     result = fitted_estimator.estimate(np.zeros((64, 64)))
     assert not result.found and result.best is None and result.modes == ()
@@ -96,6 +120,7 @@ def test_unfitted_raises():
         ({"verify_overlap": 1.0}, "verify_overlap must be in"),
         ({"verify_shortlist": 0}, "verify_shortlist must be an integer >= 1"),
         ({"n_jobs": 0}, "n_jobs must be an integer >= 1"),
+        ({"appearance_window_deg": 0.0}, "appearance_window_deg must be a positive number"),
     ],
 )
 def test_bad_parameters(synthetic_training, kwargs, message):

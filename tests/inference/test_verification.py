@@ -4,12 +4,21 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
+from posevote.geometry import box_iou
 from posevote.inference.search import ProbeSet
 from posevote.inference.verification import (
     background_boxes,
     box_descriptor,
+    box_offsets,
     descriptor_length,
+    jittered_boxes,
+    nearest_view,
+    regress_box,
+    shift_box,
+    train_box_regression,
     train_objectness,
     verify_candidates,
     window_shape,
@@ -135,3 +144,75 @@ def test_estimator_verification_round_trip(fitted_estimator, draw, tmp_path):
     del loaded.view_descriptors_
     with pytest.raises(ValueError, match="retrain"):
         loaded.estimate(image)
+
+
+_BOX = st.tuples(st.floats(-50, 200), st.floats(-50, 200), st.floats(5, 300), st.floats(5, 300))
+
+
+@given(_BOX, _BOX)
+def test_box_offsets_lead_to_the_target(box, target):
+    np.testing.assert_allclose(shift_box(box, box_offsets(box, target)), target, atol=1e-6)
+    np.testing.assert_allclose(box_offsets(target, target), 0.0, atol=1e-12)
+
+
+def test_jittered_boxes_stay_near_and_repeat():
+    box = (40.0, 30.0, 100.0, 50.0)
+    a = jittered_boxes(box, np.random.default_rng(3), n=50)
+    b = jittered_boxes(box, np.random.default_rng(3), n=50)
+    assert a == b and len(a) == 50
+    d = np.array([box_offsets(box, j) for j in a])
+    assert np.all(np.abs(d[:, :2]) <= 0.15 * np.exp(0.15) + 1e-9)
+    assert np.all(np.abs(d[:, 2:]) <= 0.15 * 1.5 + 1e-9)
+    assert np.ptp(d, axis=0).min() > 0.05
+
+
+def _scene(draw, azimuth, centre=(110.0, 90.0)):
+    """The synthetic object at ``azimuth`` on a 200 x 220 canvas, and its box."""
+    from posevote.data import object_box
+
+    img = np.zeros((200, 220))
+    obj = draw(azimuth, size=96)
+    x0, y0 = int(centre[0] - 48), int(centre[1] - 48)
+    img[y0:y0 + 96, x0:x0 + 96] = obj
+    x, y, w, h = object_box(obj)
+    return img, (x + x0, y + y0, w, h)
+
+
+def test_box_regression_moves_a_misplaced_box_onto_the_object(draw):
+    rng = np.random.default_rng(0)
+    window = (48, 48)
+    az = np.radians(np.arange(0.0, 360.0, 5.0))
+    descriptors, offsets, azimuths = [], [], []
+    for a in az:
+        img, box = _scene(draw, a)
+        for b in jittered_boxes(box, rng, n=12):
+            descriptors.append(box_descriptor(img, b, window))
+            offsets.append(box_offsets(b, box))
+            azimuths.append(a)
+    regressor = train_box_regression(np.array(descriptors), np.array(offsets), np.array(azimuths),
+                                     bins=4, alpha=10.0)
+    assert regressor.shape == (4, 4, descriptor_length(window) + 1)
+    before, after = [], []
+    for a in np.radians([25.0, 95.0, 205.0, 310.0]):
+        img, truth = _scene(draw, a, centre=(100.0, 100.0))
+        x, y, w, h = truth
+        off = (x + 0.15 * w, y - 0.12 * h, 0.85 * w, 1.12 * h)
+        before.append(box_iou(off, truth))
+        after.append(box_iou(regress_box(img, off, regressor, a, window=window), truth))
+    # Every box ends nearer the object (IoU 0.77 before; 0.82-0.96 after over seeds 0-3).
+    assert np.mean(after) > np.mean(before) + 0.08 and min(after) > max(before)
+    # A box outside the image has no descriptor and stays where it is.
+    far = (500.0, 500.0, 30.0, 30.0)
+    assert regress_box(np.zeros((50, 50)), far, regressor, 0.0, window=window) == far
+
+
+def test_nearest_view_within_the_window():
+    descriptors = np.eye(4, dtype=np.float32)
+    directions = np.array([[np.cos(t), np.sin(t), 0.0] for t in np.radians([0, 30, 90, 180])])
+    probe = np.array([0.1, 0.2, 0.0, 0.9], dtype=np.float32)   # most like view 3 (180 degrees)
+    assert nearest_view(probe, descriptors, directions, directions[0],
+                        window=np.pi) == 3
+    assert nearest_view(probe, descriptors, directions, directions[0],
+                        window=np.radians(45.0)) == 1
+    assert nearest_view(probe, descriptors, directions[:1], directions[3],
+                        window=np.radians(45.0)) is None

@@ -83,8 +83,8 @@ def test_pose_likelihood_peaks_at_the_true_translation():
 def test_model_file_round_trip(tmp_path):
     model = toy_model()
     save_model(tmp_path / "m.npz", model, {"position_sigma": 2.0}, extra={"k": 1})
-    loaded, params, extra, full, descriptors, objectness = load_model(tmp_path / "m.npz")
-    assert full is None and descriptors is None and objectness is None
+    loaded, params, extra, full, descriptors, objectness, regressor = load_model(tmp_path / "m.npz")
+    assert full is None and descriptors is None and objectness is None and regressor is None
     assert params == {"position_sigma": 2.0} and extra == {"k": 1}
     assert np.array_equal(loaded.xy, model.xy) and loaded.instance_names == ("toy",)
 
@@ -164,3 +164,15 @@ def test_model_file_refuses_bad_instance_sizes(tmp_path, monkeypatch):
     np.savez(tmp_path / "bad.npz", **arrays)
     with pytest.raises(ValueError, match="bad.npz: corrupt model file \\(instance_size"):
         load_model(tmp_path / "bad.npz")
+
+
+def test_model_file_refuses_a_bad_box_regressor(tmp_path):
+    save_model(tmp_path / "m.npz", toy_model(), {}, box_regressor=np.zeros((8, 4, 5)))
+    assert load_model(tmp_path / "m.npz")[6].shape == (8, 4, 5)
+    with np.load(tmp_path / "m.npz") as data:
+        arrays = dict(data)
+    for bad in (np.zeros((8, 3, 5)), np.full((8, 4, 5), np.nan)):
+        arrays["box_regressor"] = bad
+        np.savez(tmp_path / "bad.npz", **arrays)
+        with pytest.raises(ValueError, match="bad.npz: corrupt model file \\(box_regressor"):
+            load_model(tmp_path / "bad.npz")

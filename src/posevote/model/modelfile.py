@@ -14,7 +14,10 @@ ignore, so they keep the version number; so is the header's optional
 ``instance_size`` (each instance's training size relative to the reference,
 for ``instance_search``; files without it read as all 1), and the optional
 ``shift`` and ``view_neighbour`` arrays (the morphing between turntable
-views, ``morph_views``; files without them are not morphed).
+views, ``morph_views``; files without them are not morphed), and the
+optional ``box_regressor`` array (the box regressions of
+``appearance_refine``, one ``(4, D + 1)`` block of weights and intercepts
+per azimuth range).
 """
 
 from __future__ import annotations
@@ -39,8 +42,8 @@ _MORPH_ARRAYS = ("shift", "view_neighbour")
 
 def save_model(path: str | Path, model: PoseModel, params: dict[str, Any],
                extra: dict[str, Any] | None = None, full_model: PoseModel | None = None,
-               descriptors: np.ndarray | None = None, objectness: np.ndarray | None = None
-               ) -> None:
+               descriptors: np.ndarray | None = None, objectness: np.ndarray | None = None,
+               box_regressor: np.ndarray | None = None) -> None:
     """Write a model file atomically.
 
     Parameters
@@ -59,6 +62,8 @@ def save_model(path: str | Path, model: PoseModel, params: dict[str, Any],
         Appearance descriptor of each training view.
     objectness : ndarray, shape (D + 1,), optional
         The verification's linear object/background classifier.
+    box_regressor : ndarray, shape (B, 4, D + 1), optional
+        The box regressions of ``appearance_refine``.
     """
     header = {
         "format": FORMAT_NAME,
@@ -82,6 +87,8 @@ def save_model(path: str | Path, model: PoseModel, params: dict[str, Any],
         arrays["view_descriptor"] = np.asarray(descriptors, dtype=np.float32)
     if objectness is not None:
         arrays["objectness"] = np.asarray(objectness, dtype=np.float64)
+    if box_regressor is not None:
+        arrays["box_regressor"] = np.asarray(box_regressor, dtype=np.float64)
     arrays["header"] = np.frombuffer(json.dumps(header).encode("utf-8"), dtype=np.uint8)
     with atomic_open(path, "wb") as fh:
         np.savez_compressed(fh, **arrays)
@@ -89,7 +96,7 @@ def save_model(path: str | Path, model: PoseModel, params: dict[str, Any],
 
 def load_model(path: str | Path
                ) -> tuple[PoseModel, dict[str, Any], dict[str, Any], PoseModel | None,
-                          np.ndarray | None, np.ndarray | None]:
+                          np.ndarray | None, np.ndarray | None, np.ndarray | None]:
     """Read a model file.
 
     Parameters
@@ -110,6 +117,8 @@ def load_model(path: str | Path
         The training views' appearance descriptors, if the file has them.
     objectness : ndarray, shape (D + 1,), or None
         The verification's object/background classifier, if the file has it.
+    box_regressor : ndarray, shape (B, 4, D + 1), or None
+        The box regressions of ``appearance_refine``, if the file has them.
 
     Raises
     ------
@@ -148,6 +157,8 @@ def load_model(path: str | Path
                            if "view_descriptor" in data.files else None)
             objectness = (data["objectness"].astype(np.float64)
                           if "objectness" in data.files else None)
+            regressor = (data["box_regressor"].astype(np.float64)
+                         if "box_regressor" in data.files else None)
     except ValueError as exc:
         if str(exc).startswith(str(path)):
             raise
@@ -164,8 +175,12 @@ def load_model(path: str | Path
                                     or descriptors.shape[0] != model.n_views):
         raise ValueError(f"{path}: corrupt model file (view_descriptor has shape "
                          f"{descriptors.shape} for {model.n_views} views)")
+    if regressor is not None and (regressor.ndim != 3 or regressor.shape[1] != 4
+                                  or not np.all(np.isfinite(regressor))):
+        raise ValueError(f"{path}: corrupt model file (box_regressor has shape "
+                         f"{regressor.shape}, or values that are not finite)")
     return (model, dict(header.get("params", {})), dict(header.get("extra", {})), full_model,
-            descriptors, objectness)
+            descriptors, objectness, regressor)
 
 
 def _build(path: Path, arrays: dict[str, np.ndarray], header: dict[str, Any]) -> PoseModel:
