@@ -1,12 +1,8 @@
 """Study: a learned box regression, then the pose from the appearance of the regressed box.
 
 Reads the results folder of an epfl-cv run of the main row (its
-``results.csv`` and the models it saved), for example::
-
-    posevote evaluate epfl-cv --data ../shared/data --jobs 2 --every 8 \\
-        --rows "weights + fitting" --out /tmp/epfl-cv-8
-
-For each fold, boxes jittered around the true box of the fold's training
+``results.csv`` and the models it saved; how to make one is below). For
+each fold, boxes jittered around the true box of the fold's training
 frames (``--jitter`` of the size in position and log-size, half that in
 log-aspect; 8 per frame) give the HOG descriptor of the verification
 (:func:`posevote.inference.verification.box_descriptor`, the model's
@@ -17,13 +13,23 @@ maps one to the other. Each test frame's final box is regressed
 ``--steps`` times; then the training view whose descriptor is nearest to
 the regressed box's, among those within ``--window-deg`` of the estimate,
 gives the azimuth. Prints the median IoU after each step and the errors.
-Training frames only train; cars 11-20 are never read. A study (docs/TUNING.md,
-stop 18), not part of the estimator.
+Training frames only train; cars 11-20 are never read. This is the study
+behind ``PoseEstimator(appearance_refine=True)`` (docs/TUNING.md, stop 18);
+the other options are the variants it tried (``--help``). It reads the
+records of a run *without* ``appearance_refine``, which the epfl-cv
+protocol now uses; make one with::
+
+    python benchmarks/tune_epfl.py --every 8 --keep /tmp/epfl-cv-8 --setting \
+        "position_sigma=6.0 density_cap=0.5 max_search_features=1000 verify_candidates=40"
+
+and pass ``--results /tmp/epfl-cv-8/0``.
 
 Usage::
 
-    python benchmarks/epfl_box_regression.py --results /tmp/epfl-cv-8 [--alpha 100]
-        [--bins 8] [--window-deg 45] [--steps 3] [--jitter 0.15]
+    python benchmarks/epfl_box_regression.py --results /tmp/epfl-cv-8/0 [--alpha 100]
+        [--bins 8] [--window-deg 45] [--steps 3] [--jitter 0.15] [--per-frame 8]
+        [--context 1.0] [--k 1] [--flip-margin M] [--search F] [--mirror]
+        [--jittered-views] [--skip-every N]
 """
 
 from __future__ import annotations
@@ -96,6 +102,16 @@ def main(argv: list[str] | None = None) -> int:
                         help="the regression reads the box grown by this factor")
     parser.add_argument("--k", type=int, default=1,
                         help="the azimuth is the circular mean of this many nearest views")
+    parser.add_argument("--flip-margin", type=float, default=None,
+                        help="also look within the window around the estimate's half-turn, and "
+                             "take it when its nearest view is nearer by this fraction")
+    parser.add_argument("--search", type=float, default=0.0,
+                        help="also describe the regressed box moved by +-this fraction (27 boxes) "
+                             "and take the nearest view over all of them")
+    parser.add_argument("--mirror", action="store_true",
+                        help="add the training frames mirrored left-right, at azimuth -a")
+    parser.add_argument("--jittered-views", action="store_true",
+                        help="the nearest view among the jittered training boxes' descriptors too")
     parser.add_argument("--skip-every", type=int, default=0,
                         help="leave out the test frames of every N-th (a second selection)")
     parser.add_argument("--per-frame", type=int, default=8, help="jittered boxes per training frame")
@@ -116,9 +132,22 @@ def main(argv: list[str] | None = None) -> int:
         window, views = est.descriptor_window_, est.view_descriptors_
         view_az = np.degrees(est.full_model_.view_azimuth) % 360.0
         x, y, az = [], [], []
+        samples = []
         for image, truth, pose in zip(split.train.images, split.train.boxes, split.train.poses,
                                       strict=True):
             img = read_image(image)
+            samples.append((img, tuple(truth), float(pose[0])))
+            if args.mirror:
+                bx, by, bw, bh = truth
+                flipped = np.ascontiguousarray(img[:, ::-1])
+                fbox = (img.shape[1] - bx - bw, by, bw, bh)
+                samples.append((flipped, fbox, -float(pose[0])))
+                d = box_descriptor(flipped, fbox, window)
+                if d is not None:
+                    views = np.vstack([views, d[None]])
+                    view_az = np.append(view_az, np.degrees(-pose[0]) % 360.0)
+        for img, truth, a in samples:
+            pose = (a,)
             for _ in range(args.per_frame):
                 box = jittered(tuple(truth), args.jitter, rng)
                 d = box_descriptor(img, grown(box, args.context), window)
@@ -127,6 +156,9 @@ def main(argv: list[str] | None = None) -> int:
                     y.append(offsets(box, tuple(truth)))
                     az.append(np.degrees(pose[0]) % 360.0)
         x_arr, y_arr, az_arr = np.array(x), np.array(y), np.array(az)
+        if args.jittered_views:
+            views = np.vstack([views, x_arr])
+            view_az = np.concatenate([view_az, az_arr])
         regressions = []
         for k in range(args.bins):
             near = np.array([circular_error_deg(a, (k + 0.5) * width) <= width for a in az_arr])
@@ -153,7 +185,24 @@ def main(argv: list[str] | None = None) -> int:
             if d is None or not len(near):
                 errors.append(before[-1])
                 continue
-            nearest = near[np.argsort(((views[near] - d) ** 2).sum(axis=1))[:args.k]]
+            dist = np.sqrt(((views[near] - d) ** 2).sum(axis=1))
+            if args.search > 0:
+                f = args.search
+                for dx in (-f, 0.0, f):
+                    for dy in (-f, 0.0, f):
+                        for ds in (-f, 0.0, f):
+                            other = box_descriptor(img, moved(box, np.array([dx, dy, ds, ds])),
+                                                   window)
+                            if other is not None:
+                                dist = np.minimum(dist, np.sqrt(((views[near] - other) ** 2
+                                                                 ).sum(axis=1)))
+            nearest = near[np.argsort(dist)[:args.k]]
+            if args.flip_margin is not None:
+                back = np.flatnonzero([circular_error_deg(a, estimate + 180.0) <= args.window_deg
+                                       for a in view_az])
+                back_dist = np.sqrt(((views[back] - d) ** 2).sum(axis=1))
+                if len(back) and back_dist.min() < (1.0 - args.flip_margin) * dist.min():
+                    nearest = back[np.argsort(back_dist)[:args.k]]
             mean = np.degrees(np.angle(np.exp(1j * np.radians(view_az[nearest])).mean()))
             errors.append(circular_error_deg(float(mean), true_az))
     iou_arr = np.array(ious)

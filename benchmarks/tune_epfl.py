@@ -18,12 +18,13 @@ Results are in docs/TUNING.md.
 Usage::
 
     python benchmarks/tune_epfl.py [--protocol epfl-cv|epfl-single] [--cars 2,3,...]
-        [--every 8] [--setting "density_cap=0.5 position_sigma=6.0" ...]
+        [--every 8] [--setting "density_cap=0.5 position_sigma=6.0" ...] [--keep DIR]
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import os
 import sys
@@ -49,6 +50,9 @@ def main(argv: list[str] | None = None) -> int:
                              "epfl-single)")
     parser.add_argument("--every", type=int, default=8)
     parser.add_argument("--jobs", type=int, default=2)
+    parser.add_argument("--keep", type=Path, default=None,
+                        help="keep each setting's results folder as KEEP/0, KEEP/1, ... "
+                             "(records, models, report) instead of discarding it")
     parser.add_argument("--setting", action="append", default=[],
                         help="space-separated NAME=VALUE items; one line per --setting "
                              "(none: EPFL_PARAMS alone)")
@@ -62,11 +66,13 @@ def main(argv: list[str] | None = None) -> int:
     builder = epfl_cv if args.protocol == "epfl-cv" else epfl_single
     base = builder(args.data, cars=cars)
     row_name = base.rows[0].name  # the settings below decide what it runs
-    for text in args.setting or [""]:
+    for k, text in enumerate(args.setting or [""]):
         overrides = parse_settings(text.split())
         protocol = dataclasses.replace(base, base_params={**EPFL_PARAMS, **overrides})
         start = time.perf_counter()
-        with tempfile.TemporaryDirectory() as out:
+        with contextlib.ExitStack() as stack:
+            out = (args.keep / str(k) if args.keep is not None
+                   else stack.enter_context(tempfile.TemporaryDirectory()))
             summary = run_protocol(protocol, out, jobs=args.jobs, every=args.every,
                                    rows=[row_name],
                                    log=lambda _msg: None)

@@ -67,9 +67,13 @@ def test_appearance_refine_takes_the_nearest_training_view(synthetic_training, d
     again = PoseEstimator.load(tmp_path / "m.npz")
     np.testing.assert_array_equal(again.box_regressor_, est.box_regressor_)
     assert again.estimate(img).best == best
+    # With the verification, the candidates are judged on their regressed boxes.
+    verified = again.set_params(verify_candidates=5).estimate(img).best
+    assert verified is not None and box_iou(verified.box, object_box(img)) > 0.7
     plain = PoseEstimator().fit(images[:4], az[:4], boxes=boxes[:4])
-    with pytest.raises(ValueError, match="appearance_refine needs the box regression"):
-        plain.set_params(appearance_refine=True).estimate(img)
+    for extra in ({}, {"verify_candidates": 5}):
+        with pytest.raises(ValueError, match="appearance_refine needs the box regression"):
+            plain.set_params(appearance_refine=True, **extra).estimate(img)
 
 
 def test_blank_image_is_not_found(fitted_estimator):

@@ -72,6 +72,26 @@ def test_verification_prefers_the_box_that_looks_like_its_view(draw):
     assert found is not None and found[0] == (0, 0, 0)
 
 
+def test_candidates_are_judged_on_their_regressed_boxes(draw):
+    az = np.radians(np.arange(0, 360, 20.0))
+    window = (48, 48)
+    train = np.array([box_descriptor(draw(a, size=96), (0, 0, 96, 96), window) for a in az])
+    scene = np.zeros((200, 300))
+    scene[50:146, 20:116] = draw(np.radians(40.0), size=96)
+    scene[50:146, 180:276] = np.random.default_rng(0).random((96, 96)) > 0.7
+    # Candidate 2 (40 degrees) is 30 pixels to the right of the object; a
+    # regression that moves every box 10 pixels left per step (three steps)
+    # puts it exactly on the object, whose descriptor is the training view's.
+    probes = _probes([(228, 98), (228, 98), (98, 98)], [0.9, 0.8, 0.5])
+    left = np.zeros((1, 4, descriptor_length(window) + 1))
+    left[0, 0, -1] = -10.0 / 96.0
+    kw = {"window": window, "n_candidates": 3, "tolerance": np.radians(10.0)}
+    moved = verify_candidates(probes, scene, train, az, np.zeros(len(az)), regressor=left, **kw)
+    assert moved is not None and moved[0] == (2, 0, 0) and moved[1] < 1e-3
+    plain = verify_candidates(probes, scene, train, az, np.zeros(len(az)), **kw)
+    assert plain is not None and plain[1] > 0.5
+
+
 def test_the_short_list_limits_the_choice(draw):
     az = np.radians(np.arange(0, 360, 20.0))
     window = (48, 48)

@@ -96,15 +96,16 @@ EPFL_PARAMS: dict[str, Any] = {
 # choices between 20 and 40 candidates, 1 to 3 grid steps searched again,
 # and short lists of 5 to 20 were all within a few frames of each other.
 #
-# Stop 18: the final box is regressed on its HOG descriptor and the viewpoint
-# taken from the nearest training descriptor within 45 degrees of the
-# estimate (``appearance_refine``). Given the car's true box, the edge
-# pipeline was still 12 degrees off (benchmarks/epfl_true_box.py): the pose
-# inside the box, not the box, limited it. On the same sweep (every 4th test
-# frame, 296 frames, both folds): median / mean 15.02 / 46.0 -> 8.30 / 43.4
-# degrees, % under 45 71.3 -> 70.6, detected 77.0 -> 80.4%; every 8th frame
-# 14.40 / 44.3 -> 7.26 / 42.2, 73.8 -> 71.8%; a 30-degree window 9.27 /
-# 43.4, 70.3% (docs/TUNING.md).
+# Stop 18: the boxes are regressed on their HOG descriptors, the
+# verification's candidates before they are compared and the final box after
+# the estimate, whose viewpoint is then taken from the nearest training
+# descriptor within 45 degrees (``appearance_refine``). Given the car's true
+# box, the edge pipeline was still 12 degrees off
+# (benchmarks/epfl_true_box.py): the pose inside the box limited it. On the
+# same sweep (every 4th test frame, 296 frames, both folds): median / mean
+# 15.02 / 46.0 -> 7.23 / 38.5 degrees, % under 45 71.3 -> 74.3, detected 77.0
+# -> 81.1%; every 8th frame 14.40 / 44.3 -> 7.59 / 39.4, 73.8 -> 73.8%, 75.8
+# -> 81.2% (docs/TUNING.md).
 EPFL_CATEGORY_PARAMS: dict[str, Any] = {**EPFL_PARAMS, "position_sigma": 6.0, "density_cap": 0.5,
                                         "max_search_features": 1000, "verify_candidates": 40,
                                         "appearance_refine": True}
@@ -236,7 +237,7 @@ _EPFL_ROWS = (
 
 # epfl-10-10 runs its main row unless asked for more (``--rows all``): the
 # issue gives the protocol 15 minutes with 2 processes, and
-# benchmarks/time_epfl_10_10.py projects 8.6 minutes for the main row at
+# benchmarks/time_epfl_10_10.py projects 8.7 minutes for the main row at
 # stop 18, with ``appearance_refine`` (docs/results/time_epfl_10_10.md; 27 s
 # of it training, the box regressions included; 11.6 minutes at stop 16 on a
 # slower day of the machine, 26 s of training). Until stop 15 every vote peak

@@ -145,7 +145,8 @@ def verify_candidates(probes: ProbeSet, image: NDArray[np.float64],
                       descriptors: NDArray[np.float32], view_azimuth: NDArray[np.float64],
                       view_elevation: NDArray[np.float64], *, window: tuple[int, int],
                       n_candidates: int, tolerance: float,
-                      objectness: NDArray[np.float64] | None = None, shortlist: int = 10
+                      objectness: NDArray[np.float64] | None = None, shortlist: int = 10,
+                      regressor: NDArray[np.float64] | None = None
                       ) -> tuple[tuple[int, int, int], float] | None:
     """The search candidate whose crop looks most like a training view near its viewpoint.
 
@@ -171,6 +172,10 @@ def verify_candidates(probes: ProbeSet, image: NDArray[np.float64],
         ``shortlist`` candidates it scores highest are compared.
     shortlist : int, optional
         Size of the short list.
+    regressor : ndarray, shape (B, 4, D + 1), optional
+        Box regressions (:func:`train_box_regression`); with them, each
+        short-listed candidate's box is first regressed (:func:`regress_box`)
+        and the regressed box's descriptor is compared.
 
     Returns
     -------
@@ -202,6 +207,12 @@ def verify_candidates(probes: ProbeSet, image: NDArray[np.float64],
     train_sq = np.einsum("ij,ij->i", descriptors, descriptors)
     best: tuple[tuple[int, int, int], float] | None = None
     for index, near, d in found:
+        if regressor is not None:
+            v, a, s = index
+            moved = regress_box(image, boxes[v, a, s], regressor, float(probes.azimuth[v]),
+                                window=window)
+            regressed = box_descriptor(image, moved, window)
+            d = regressed if regressed is not None else d
         sq = train_sq[near] + float(d @ d) - 2.0 * (descriptors[near] @ d)
         dist = float(np.sqrt(max(float(sq.min()), 0.0)))
         if best is None or dist < best[1]:
