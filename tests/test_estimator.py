@@ -125,6 +125,7 @@ def test_unfitted_raises():
         ({"verify_shortlist": 0}, "verify_shortlist must be an integer >= 1"),
         ({"n_jobs": 0}, "n_jobs must be an integer >= 1"),
         ({"appearance_window_deg": 0.0}, "appearance_window_deg must be a positive number"),
+        ({"verify_tolerance_deg": 200.0}, "verify_tolerance_deg must be in"),
     ],
 )
 def test_bad_parameters(synthetic_training, kwargs, message):
@@ -363,3 +364,23 @@ def test_verification_keeps_the_search_near_the_verified_box(synthetic_training,
     assert len(kept[1]) < len(kept[0])
     # Every kept box overlaps the verified one by 0.9, hence each other by about 0.8.
     assert np.all(box_iou(kept[1][:, None, :], kept[1][None, :, :]) > 0.75)
+
+
+def test_verification_tolerance_reaches_the_comparison(synthetic_training, draw, monkeypatch):
+    import posevote.estimator as estimator_module
+    from posevote.refinement.fitting import probe_spacing
+
+    images, az, boxes = synthetic_training
+    est = PoseEstimator(verify_candidates=5).fit(images, az, boxes=boxes)
+    seen = []
+
+    def spy(*args, tolerance, **kwargs):
+        seen.append(tolerance)
+        return None   # nothing verified: the estimate goes on with the search's probes
+
+    monkeypatch.setattr(estimator_module, "verify_candidates", spy)
+    img = draw(np.radians(100))
+    est.estimate(img)
+    est.set_params(verify_tolerance_deg=40.0).estimate(img)
+    assert seen[0] == pytest.approx(probe_spacing(est.probe(img)[0]))
+    assert seen[1] == pytest.approx(np.radians(40.0))
