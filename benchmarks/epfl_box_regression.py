@@ -46,35 +46,14 @@ from posevote import PoseEstimator
 from posevote.data import read_image
 from posevote.evaluation.protocols import epfl_cv
 from posevote.geometry import box_iou
-from posevote.inference.verification import box_descriptor
+from posevote.inference.verification import (
+    box_descriptor,
+    box_offsets,
+    jittered_boxes,
+    shift_box,
+)
 
 ROW = "weights + fitting"
-
-
-def jittered(box: tuple[float, ...], jitter: float, rng: np.random.Generator
-             ) -> tuple[float, float, float, float]:
-    """A box moved and resized at random around ``box``."""
-    x, y, w, h = box
-    size, aspect = np.exp(rng.uniform(-jitter, jitter)), np.exp(rng.uniform(-jitter, jitter) / 2)
-    nw, nh = w * size * aspect, h * size / aspect
-    cx = x + w / 2 + rng.uniform(-jitter, jitter) * w
-    cy = y + h / 2 + rng.uniform(-jitter, jitter) * h
-    return cx - nw / 2, cy - nh / 2, nw, nh
-
-
-def offsets(box: tuple[float, ...], truth: tuple[float, ...]) -> list[float]:
-    """Centre shift in box sizes and log-size ratios from ``box`` to ``truth``."""
-    x, y, w, h = box
-    tx, ty, tw, th = truth
-    return [(tx + tw / 2 - x - w / 2) / w, (ty + th / 2 - y - h / 2) / h,
-            float(np.log(tw / w)), float(np.log(th / h))]
-
-
-def moved(box: tuple[float, ...], d: np.ndarray) -> tuple[float, float, float, float]:
-    """``box`` moved by predicted :func:`offsets`."""
-    x, y, w, h = box
-    nw, nh = w * np.exp(d[2]), h * np.exp(d[3])
-    return x + w / 2 + d[0] * w - nw / 2, y + h / 2 + d[1] * h - nh / 2, nw, nh
 
 
 def grown(box: tuple[float, ...], factor: float) -> tuple[float, float, float, float]:
@@ -147,14 +126,12 @@ def main(argv: list[str] | None = None) -> int:
                     views = np.vstack([views, d[None]])
                     view_az = np.append(view_az, np.degrees(-pose[0]) % 360.0)
         for img, truth, a in samples:
-            pose = (a,)
-            for _ in range(args.per_frame):
-                box = jittered(tuple(truth), args.jitter, rng)
+            for box in jittered_boxes(truth, rng, n=args.per_frame, jitter=args.jitter):
                 d = box_descriptor(img, grown(box, args.context), window)
                 if d is not None:
                     x.append(d)
-                    y.append(offsets(box, tuple(truth)))
-                    az.append(np.degrees(pose[0]) % 360.0)
+                    y.append(box_offsets(box, truth))
+                    az.append(np.degrees(a) % 360.0)
         x_arr, y_arr, az_arr = np.array(x), np.array(y), np.array(az)
         if args.jittered_views:
             views = np.vstack([views, x_arr])
@@ -175,7 +152,7 @@ def main(argv: list[str] | None = None) -> int:
                 d = box_descriptor(img, grown(box, args.context), window)
                 if d is None:
                     break
-                box = moved(box, reg.predict(d[None])[0])
+                box = shift_box(box, reg.predict(d[None])[0])
                 trail.append(box_iou(box, truth))
             ious.append(trail + [trail[-1]] * (args.steps + 1 - len(trail)))
             before.append(circular_error_deg(estimate, true_az))
@@ -191,7 +168,7 @@ def main(argv: list[str] | None = None) -> int:
                 for dx in (-f, 0.0, f):
                     for dy in (-f, 0.0, f):
                         for ds in (-f, 0.0, f):
-                            other = box_descriptor(img, moved(box, np.array([dx, dy, ds, ds])),
+                            other = box_descriptor(img, shift_box(box, np.array([dx, dy, ds, ds])),
                                                    window)
                             if other is not None:
                                 dist = np.minimum(dist, np.sqrt(((views[near] - other) ** 2

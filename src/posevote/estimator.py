@@ -1042,16 +1042,11 @@ class PoseEstimator:
                                   regressor=self._box_regressor())
         if found is None:
             return None
-        (v, a, s), _ = found
+        (v, a, s), _, box = found
         size = probes.box[v] * probes.scale[s]
         centre = probes.translation[v, a, s]
-        box = tuple(float(b) for b in probes.boxes()[v, a, s])
-        regressor = self._box_regressor()
-        if regressor is not None:
-            # The candidates were judged on their regressed boxes (appearance_refine);
-            # the search again runs inside the winner's.
-            box = regress_box(image, box, regressor, float(probes.azimuth[v]),
-                              window=self.descriptor_window_)
+        if self._box_regressor() is not None:
+            # The winner was judged on its regressed box: search again inside that.
             size = np.array(box[2:])
             centre = np.array([box[0] + (box[2] - 1) / 2.0, box[1] + (box[3] - 1) / 2.0])
         half = size * (0.5 + self.verify_margin)

@@ -33,6 +33,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 from skimage.feature import hog
+from sklearn.linear_model import Ridge
 from sklearn.svm import LinearSVC
 
 from posevote.geometry import box_iou, viewing_direction
@@ -147,7 +148,7 @@ def verify_candidates(probes: ProbeSet, image: NDArray[np.float64],
                       n_candidates: int, tolerance: float,
                       objectness: NDArray[np.float64] | None = None, shortlist: int = 10,
                       regressor: NDArray[np.float64] | None = None
-                      ) -> tuple[tuple[int, int, int], float] | None:
+                      ) -> tuple[tuple[int, int, int], float, tuple[float, ...]] | None:
     """The search candidate whose crop looks most like a training view near its viewpoint.
 
     Parameters
@@ -179,8 +180,9 @@ def verify_candidates(probes: ProbeSet, image: NDArray[np.float64],
 
     Returns
     -------
-    ((viewpoint, inplane, scale), distance) or None
-        Indices of the winning probe and its descriptor distance; None if no
+    ((viewpoint, inplane, scale), distance, box) or None
+        Indices of the winning probe, its descriptor distance and the box
+        that was compared (the probe's, or its regressed box); None if no
         candidate has a descriptor (boxes outside the image) or a training
         view within ``tolerance``.
     """
@@ -205,18 +207,19 @@ def verify_candidates(probes: ProbeSet, image: NDArray[np.float64],
         looks = np.array([float(d @ objectness[:-1]) + objectness[-1] for _, _, d in found])
         found = [found[i] for i in np.sort(np.argsort(-looks, kind="stable")[:shortlist])]
     train_sq = np.einsum("ij,ij->i", descriptors, descriptors)
-    best: tuple[tuple[int, int, int], float] | None = None
+    best: tuple[tuple[int, int, int], float, tuple[float, ...]] | None = None
     for index, near, d in found:
+        v, a, s = index
+        box = tuple(float(b) for b in boxes[v, a, s])
         if regressor is not None:
-            v, a, s = index
-            moved = regress_box(image, boxes[v, a, s], regressor, float(probes.azimuth[v]),
-                                window=window)
+            moved = regress_box(image, box, regressor, float(probes.azimuth[v]), window=window)
             regressed = box_descriptor(image, moved, window)
-            d = regressed if regressed is not None else d
+            if regressed is not None:
+                box, d = moved, regressed
         sq = train_sq[near] + float(d @ d) - 2.0 * (descriptors[near] @ d)
         dist = float(np.sqrt(max(float(sq.min()), 0.0)))
         if best is None or dist < best[1]:
-            best = (index, dist)
+            best = (index, dist, box)
     return best
 
 
@@ -300,8 +303,6 @@ def train_box_regression(descriptors: NDArray[np.float32], offsets: NDArray[np.f
     ndarray, shape (bins, 4, D + 1)
         Per range, weights and intercept of each offset.
     """
-    from sklearn.linear_model import Ridge
-
     width = 2.0 * np.pi / bins
     out = np.zeros((bins, 4, descriptors.shape[1] + 1))
     for k in range(bins):
@@ -324,13 +325,14 @@ def regress_box(image: NDArray[np.floating], box: Sequence[float], regressor: ND
     """
     bins = regressor.shape[0]
     coef = regressor[int(np.mod(azimuth, 2.0 * np.pi) // (2.0 * np.pi / bins)) % bins]
-    out = tuple(float(b) for b in box)
+    x, y, w, h = (float(b) for b in box)
+    out = (x, y, w, h)
     for _ in range(steps):
         d = box_descriptor(image, out, window)
         if d is None:
             break
         out = shift_box(out, coef[:, :-1] @ d + coef[:, -1])
-    return out  # type: ignore[return-value]
+    return out
 
 
 def nearest_view(descriptor: NDArray[np.float32], descriptors: NDArray[np.float32],
