@@ -393,7 +393,8 @@ class PoseEstimator:
         median / mean error from 15.0 / 46.0 to 7.2 / 38.5 degrees, the
         share under 45 degrees from 71.3 to 74.3% and the cars found from
         77.0 to 81.1%; with ``verify_tolerance_deg=40`` too, 7.2 / 35.3
-        degrees, 76.7% and 82.4% (``docs/TUNING.md``).
+        degrees, 76.7% and 82.4%, and verifying 80 candidates with a short
+        list of 15, 6.6 / 32.0 degrees, 79.1% and 82.1% (``docs/TUNING.md``).
     appearance_window_deg : float, default 45.0
         With ``appearance_refine``, the training views within this angle of
         the estimate compete for the nearest descriptor (front/back

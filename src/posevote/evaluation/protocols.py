@@ -111,9 +111,15 @@ EPFL_PARAMS: dict[str, Any] = {
 # 38.5 -> 7.19 / 35.3, 74.3 -> 76.7%, 81.1 -> 82.4% (30 degrees: 6.95 /
 # 36.2, 76.0%); every 8th frame 7.59 / 39.4 -> 6.70 / 35.0, 73.8 -> 77.2%
 # (20: 7.26 / 36.9, 75.8%; 80: 7.59 / 34.9, 76.5%; 180: 8.80 / 42.3, 71.8%).
+# With the regressed boxes, verifying the 80 best probes with a short list of
+# 15 (instead of 40 and 10): every 4th frame 7.19 / 35.3 -> 6.58 / 32.0, 76.7
+# -> 79.1%, detected 82.4 -> 82.1% (80 with 10: 7.23 / 33.7, 77.7%); every
+# 8th frame 6.70 / 35.0 -> 7.30 / 31.6, 77.2 -> 79.2% (60 with 10: 6.41 /
+# 34.6, 76.5%).
 EPFL_CATEGORY_PARAMS: dict[str, Any] = {**EPFL_PARAMS, "position_sigma": 6.0, "density_cap": 0.5,
-                                        "max_search_features": 1000, "verify_candidates": 40,
-                                        "appearance_refine": True, "verify_tolerance_deg": 40.0}
+                                        "max_search_features": 1000, "verify_candidates": 80,
+                                        "verify_shortlist": 15, "appearance_refine": True,
+                                        "verify_tolerance_deg": 40.0}
 
 # epfl-single trains and tests on one car's own sequence: the camera distance
 # is fixed, so the scale range is the library default's, as in the COIL
@@ -242,9 +248,10 @@ _EPFL_ROWS = (
 
 # epfl-10-10 runs its main row unless asked for more (``--rows all``): the
 # issue gives the protocol 15 minutes with 2 processes, and
-# benchmarks/time_epfl_10_10.py projects 10.1 minutes for the main row at
-# stop 18, with ``appearance_refine`` (docs/results/time_epfl_10_10.md; 27 s
-# of it training, the box regressions included; 11.6 minutes at stop 16 on a
+# benchmarks/time_epfl_10_10.py projects 10.5 minutes for the main row at
+# stop 18, with ``appearance_refine`` and 80 verified candidates
+# (docs/results/time_epfl_10_10.md; 26 s of it training, the box regressions
+# included; 11.6 minutes at stop 16 on a
 # slower day of the machine, 26 s of training). Until stop 15 every vote peak
 # of the search was hill-climbed and the same projection gave 13.5 to 15.6
 # minutes from run to run (the machine's speed varies by about 10%, and a
