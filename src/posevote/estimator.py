@@ -104,8 +104,11 @@ class _Appearance:
     def finish(self, sizes: NDArray[np.float64]
                ) -> tuple[tuple[int, int], NDArray[np.float32], NDArray[np.float64] | None,
                           NDArray[np.float64] | None]:
-        """The window, the views' descriptors (zeros where a box is too small), the classifier
-        and the box regression (None without ``regression``)."""
+        """The window, the views' descriptors, the classifier and the box regression.
+
+        Descriptors are zeros where a box is too small; the regression is None
+        without ``regression``.
+        """
         window = self.window if self.window is not None else window_shape(sizes)
 
         def stack(items: list[NDArray[np.float32] | None]) -> NDArray[np.float32]:
@@ -962,8 +965,7 @@ class PoseEstimator:
                             instance=instance if kept else "", instance_margin=margin)
 
     def _appearance(self, hyp: Hypothesis, image: NDArray[np.float64]) -> Hypothesis:
-        """The best mode with its box regressed and the viewpoint of its nearest view
-        (``appearance_refine``)."""
+        """The best mode, its box regressed and its viewpoint the nearest view's (``appearance_refine``)."""
         regressor = self._box_regressor()
         if regressor is None:
             return hyp

@@ -53,14 +53,20 @@ def _probes(centres, scores, size=96.0):
                     box=np.full((v, 2), size))
 
 
-def test_verification_prefers_the_box_that_looks_like_its_view(draw):
+def _views_and_scene(draw):
+    """Training descriptors every 20 degrees, and a scene: the object at 40 degrees
+    in (20, 50, 96, 96), clutter in (180, 50, 96, 96)."""
     az = np.radians(np.arange(0, 360, 20.0))
     window = (48, 48)
     train = np.array([box_descriptor(draw(a, size=96), (0, 0, 96, 96), window) for a in az])
     scene = np.zeros((200, 300))
-    scene[50:146, 20:116] = draw(np.radians(40.0), size=96)   # the object, at 40 degrees
-    rng = np.random.default_rng(0)
-    scene[50:146, 180:276] = rng.random((96, 96)) > 0.7       # clutter
+    scene[50:146, 20:116] = draw(np.radians(40.0), size=96)
+    scene[50:146, 180:276] = np.random.default_rng(0).random((96, 96)) > 0.7
+    return az, window, train, scene
+
+
+def test_verification_prefers_the_box_that_looks_like_its_view(draw):
+    az, window, train, scene = _views_and_scene(draw)
     # Candidate 0 (highest score) sits on the clutter, candidate 2 (40 degrees) on the object.
     probes = _probes([(228, 98), (228, 98), (68, 98)], [0.9, 0.8, 0.5])
     found = verify_candidates(probes, scene, train, az, np.zeros(len(az)), window=window,
@@ -73,12 +79,7 @@ def test_verification_prefers_the_box_that_looks_like_its_view(draw):
 
 
 def test_candidates_are_judged_on_their_regressed_boxes(draw):
-    az = np.radians(np.arange(0, 360, 20.0))
-    window = (48, 48)
-    train = np.array([box_descriptor(draw(a, size=96), (0, 0, 96, 96), window) for a in az])
-    scene = np.zeros((200, 300))
-    scene[50:146, 20:116] = draw(np.radians(40.0), size=96)
-    scene[50:146, 180:276] = np.random.default_rng(0).random((96, 96)) > 0.7
+    az, window, train, scene = _views_and_scene(draw)
     # Candidate 2 (40 degrees) is 30 pixels to the right of the object; a
     # regression that moves every box 10 pixels left per step (three steps)
     # puts it exactly on the object, whose descriptor is the training view's.
@@ -93,12 +94,7 @@ def test_candidates_are_judged_on_their_regressed_boxes(draw):
 
 
 def test_the_short_list_limits_the_choice(draw):
-    az = np.radians(np.arange(0, 360, 20.0))
-    window = (48, 48)
-    train = np.array([box_descriptor(draw(a, size=96), (0, 0, 96, 96), window) for a in az])
-    scene = np.zeros((200, 300))
-    scene[50:146, 20:116] = draw(np.radians(40.0), size=96)
-    scene[50:146, 180:276] = np.random.default_rng(0).random((96, 96)) > 0.7
+    az, window, train, scene = _views_and_scene(draw)
     probes = _probes([(228, 98), (228, 98), (68, 98)], [0.9, 0.8, 0.5])
     clutter = box_descriptor(scene, (180, 50, 96, 96), window)
     # A classifier that finds the clutter most object-like: with a short
