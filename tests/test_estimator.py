@@ -76,6 +76,28 @@ def test_appearance_refine_takes_the_nearest_training_view(synthetic_training, d
             plain.set_params(appearance_refine=True, **extra).estimate(img)
 
 
+def test_appearance_refine_keeps_the_verified_box(synthetic_training, draw, monkeypatch):
+    import posevote.estimator as estimator_module
+
+    images, az, boxes = synthetic_training
+    est = PoseEstimator(appearance_refine=True, verify_candidates=5).fit(images, az,
+                                                                       boxes=boxes)
+    img = draw(np.radians(110.0))
+    real = estimator_module.verify_candidates
+    chosen = []
+
+    def spy(*args, **kwargs):
+        found = real(*args, **kwargs)
+        assert found is not None
+        chosen.append(found[2])
+        return found
+
+    monkeypatch.setattr(estimator_module, "verify_candidates", spy)
+    best = est.estimate(img).best
+    # The winner's regressed box is the estimate's, not the re-found mode's regressed anew.
+    assert len(chosen) == 1 and best is not None and best.box == pytest.approx(chosen[0])
+
+
 def test_blank_image_is_not_found(fitted_estimator):
     result = fitted_estimator.estimate(np.zeros((64, 64)))
     assert not result.found and result.best is None and result.modes == ()
@@ -126,6 +148,8 @@ def test_unfitted_raises():
         ({"n_jobs": 0}, "n_jobs must be an integer >= 1"),
         ({"appearance_window_deg": 0.0}, "appearance_window_deg must be a positive number"),
         ({"verify_tolerance_deg": 200.0}, "verify_tolerance_deg must be in"),
+        ({"verify_objectness_weight": -1.0}, "verify_objectness_weight must be a finite"),
+        ({"verify_objectness_weight": float("nan")}, "verify_objectness_weight must be a finite"),
     ],
 )
 def test_bad_parameters(synthetic_training, kwargs, message):

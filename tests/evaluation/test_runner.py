@@ -118,3 +118,18 @@ def test_default_rows_and_all(tiny_protocol, tmp_path):
     assert [r["name"] for r in summary["rows"]] == ["no fitting"]
     summary = run_protocol(two, tmp_path / "all", rows=["all"], log=lambda m: None)
     assert [r["name"] for r in summary["rows"]] == ["weights + fitting", "no fitting"]
+
+
+def test_processes_give_the_same_records_and_leave_opencv_threads(tiny_protocol, tmp_path):
+    # The workers run one thread each (OpenCV's set in the parent before they
+    # are forked: set in a forked child it hung); the estimates are the same.
+    quiet = {"log": lambda m: None, "rows": ["weights + fitting"]}
+    threads = cv2.getNumThreads()
+    one = run_protocol(tiny_protocol, tmp_path / "one", **quiet)
+    two = run_protocol(tiny_protocol, tmp_path / "two", jobs=2, **quiet)
+    assert cv2.getNumThreads() == threads
+    key = f"{slug('weights + fitting')}__only.jsonl"
+    a, b = (sorted(read_records(tmp_path / d / "records" / key), key=lambda r: r["image"])
+            for d in ("one", "two"))
+    assert [r["estimate_deg"] for r in a] == [r["estimate_deg"] for r in b]
+    assert one["rows"][0]["overall"]["median"] == two["rows"][0]["overall"]["median"]

@@ -108,6 +108,29 @@ def test_the_short_list_limits_the_choice(draw):
                              **kw)[0] == (2, 0, 0)
 
 
+def test_the_objectness_weight_trades_distance_for_object_likeness(draw):
+    az, window, train, scene = _views_and_scene(draw)
+    probes = _probes([(228, 98), (228, 98), (68, 98)], [0.9, 0.8, 0.5])
+    clutter = box_descriptor(scene, (180, 50, 96, 96), window)
+    obj = box_descriptor(scene, (20, 50, 96, 96), window)
+    likes_clutter = np.r_[clutter, 0.0].astype(np.float64)
+    kw = {"window": window, "n_candidates": 3, "tolerance": np.radians(10.0),
+          "objectness": likes_clutter, "shortlist": 3}
+    # The object's box is a training view (distance 0); the clutter's is far
+    # but the classifier likes it: a weight beyond the distance gap over the
+    # score gap lets the clutter win, none or a small one keeps the object.
+    clutter_dist = verify_candidates(probes, scene, train, az, np.zeros(len(az)),
+                                     n_candidates=1, window=window,
+                                     tolerance=np.radians(10.0))[1]
+    gap = float(clutter @ clutter - obj @ clutter)
+    assert gap > 0
+    turn = clutter_dist / gap
+    for weight, winner in ((0.0, (2, 0, 0)), (0.5 * turn, (2, 0, 0)), (2.0 * turn, (0, 0, 0))):
+        found = verify_candidates(probes, scene, train, az, np.zeros(len(az)),
+                                  objectness_weight=weight, **kw)
+        assert found is not None and found[0] == winner
+
+
 def test_background_boxes_miss_the_object_and_repeat_with_the_seed():
     box = (100.0, 60.0, 120.0, 60.0)
     a = background_boxes((250, 376), box, np.random.default_rng(3), attempts=50)

@@ -35,7 +35,9 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from posevote._io import atomic_write_text
 from posevote.estimator import PoseEstimator
@@ -95,7 +97,14 @@ _ESTIMATORS: dict[str, PoseEstimator] = {}
 
 
 def _init_worker() -> None:
+    """One thread per worker process for numba and BLAS: the processes fill the cores.
+
+    OpenCV's thread count is set to one in the parent before the workers
+    are forked (:func:`run_protocol`): setting it in a forked child whose
+    parent had used OpenCV's threads hangs.
+    """
     os.environ["NUMBA_NUM_THREADS"] = "1"
+    threadpool_limits(1)
 
 
 def estimate_record(model_path: str, task: dict[str, Any]) -> dict[str, Any]:
@@ -303,6 +312,9 @@ def run_protocol(protocol: Protocol, out_dir: str | Path, *, jobs: int = 1, ever
         progress(done, total)
     executor = ProcessPoolExecutor(max_workers=jobs, initializer=_init_worker) if jobs > 1 \
         else None
+    cv_threads = cv2.getNumThreads()
+    if executor is not None:
+        cv2.setNumThreads(1)   # inherited by the workers, forked at the first task
     try:
         for model_file, record_path, tasks in plan:
             if not tasks:
@@ -321,6 +333,7 @@ def run_protocol(protocol: Protocol, out_dir: str | Path, *, jobs: int = 1, ever
     finally:
         if executor is not None:
             executor.shutdown(wait=True, cancel_futures=True)
+        cv2.setNumThreads(cv_threads)
     records = []
     for row in runnable:
         for split in protocol.splits:

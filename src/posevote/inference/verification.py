@@ -147,7 +147,8 @@ def verify_candidates(probes: ProbeSet, image: NDArray[np.float64],
                       view_elevation: NDArray[np.float64], *, window: tuple[int, int],
                       n_candidates: int, tolerance: float,
                       objectness: NDArray[np.float64] | None = None, shortlist: int = 10,
-                      regressor: NDArray[np.float64] | None = None
+                      regressor: NDArray[np.float64] | None = None,
+                      objectness_weight: float = 0.0
                       ) -> tuple[tuple[int, int, int], float, tuple[float, ...]] | None:
     """The search candidate whose crop looks most like a training view near its viewpoint.
 
@@ -177,11 +178,15 @@ def verify_candidates(probes: ProbeSet, image: NDArray[np.float64],
         Box regressions (:func:`train_box_regression`); with them, each
         short-listed candidate's box is first regressed (:func:`regress_box`)
         and the regressed box's descriptor is compared.
+    objectness_weight : float, optional
+        With ``objectness``, a candidate's distance to its nearest training
+        view minus this times the classifier's score of the compared
+        descriptor decides (0: the distance alone).
 
     Returns
     -------
     ((viewpoint, inplane, scale), distance, box) or None
-        Indices of the winning probe, its descriptor distance and the box
+        Indices of the winning probe, its (weighted) descriptor distance and the box
         that was compared (the probe's, or its regressed box); None if no
         candidate has a descriptor (boxes outside the image) or a training
         view within ``tolerance``.
@@ -212,12 +217,14 @@ def verify_candidates(probes: ProbeSet, image: NDArray[np.float64],
         v, a, s = index
         box = tuple(float(b) for b in boxes[v, a, s])
         if regressor is not None:
-            moved = regress_box(image, box, regressor, float(probes.azimuth[v]), window=window)
-            regressed = box_descriptor(image, moved, window)
+            moved, regressed = regress_described(image, box, d, regressor,
+                                                 float(probes.azimuth[v]), window=window)
             if regressed is not None:
                 box, d = moved, regressed
         sq = train_sq[near] + float(d @ d) - 2.0 * (descriptors[near] @ d)
         dist = float(np.sqrt(max(float(sq.min()), 0.0)))
+        if objectness is not None and objectness_weight:
+            dist -= objectness_weight * (float(d @ objectness[:-1]) + objectness[-1])
         if best is None or dist < best[1]:
             best = (index, dist, box)
     return best
@@ -323,16 +330,33 @@ def regress_box(image: NDArray[np.floating], box: Sequence[float], regressor: ND
     A box whose descriptor cannot be computed (less than 8x8 pixels in the
     image) stays where it is.
     """
+    return regress_described(image, box, box_descriptor(image, box, window), regressor, azimuth,
+                             window=window, steps=steps)[0]
+
+
+def regress_described(image: NDArray[np.floating], box: Sequence[float],
+                      descriptor: NDArray[np.float32] | None, regressor: NDArray[np.float64],
+                      azimuth: float, *, window: tuple[int, int], steps: int = REGRESSION_STEPS
+                      ) -> tuple[tuple[float, float, float, float], NDArray[np.float32] | None]:
+    """:func:`regress_box` from the box's ``descriptor``; also returns the moved box's.
+
+    Each step describes the box once: ``steps`` descriptors in all, the
+    last one the returned box's (None when it cannot be computed; the box
+    then stays where the last descriptor was).
+    """
     bins = regressor.shape[0]
     coef = regressor[int(np.mod(azimuth, 2.0 * np.pi) // (2.0 * np.pi / bins)) % bins]
     x, y, w, h = (float(b) for b in box)
-    out = (x, y, w, h)
+    out, d = (x, y, w, h), descriptor
     for _ in range(steps):
-        d = box_descriptor(image, out, window)
         if d is None:
             break
-        out = shift_box(out, coef[:, :-1] @ d + coef[:, -1])
-    return out
+        moved = shift_box(out, coef[:, :-1] @ d + coef[:, -1])
+        d_moved = box_descriptor(image, moved, window)
+        if d_moved is None:
+            break
+        out, d = moved, d_moved
+    return out, d
 
 
 def nearest_view(descriptor: NDArray[np.float32], descriptors: NDArray[np.float32],
