@@ -104,8 +104,13 @@ def test_records_of_other_code_are_redone(tiny_protocol, tmp_path):
     assert done[0] > 0 and not any("other posevote code" in m for m in messages)
     (out / "code.json").write_text(json.dumps({"fingerprint": "0123456789abcdef"}))
     messages, done = [], []
-    run_protocol(tiny_protocol, out, log=messages.append, progress=lambda d, t: done.append(d))
+    before = json.loads((out / "summary.json").read_text())["wall_seconds_total"]
+    summary = run_protocol(tiny_protocol, out, log=messages.append,
+                           progress=lambda d, t: done.append(d))
     assert done[0] == 0 and any("other posevote code" in m for m in messages)
+    # Every record was redone: the earlier runs' time no longer counts.
+    assert before > 0
+    assert summary["wall_seconds_total"] == summary["wall_seconds_this_run"]
 
 
 def test_default_rows_and_all(tiny_protocol, tmp_path):

@@ -264,10 +264,14 @@ _EPFL_ROWS = (
 
 # epfl-10-10 runs its main row unless asked for more (``--rows all``): the
 # issue gives the protocol 15 minutes with 2 processes, and
-# benchmarks/time_epfl_10_10.py projects 10.5 minutes for the main row at
-# stop 18, with ``appearance_refine`` and 80 verified candidates
-# (docs/results/time_epfl_10_10.md; 26 s of it training, the box regressions
-# included; 11.6 minutes at stop 16 on a
+# benchmarks/time_epfl_10_10.py projects 9.3 minutes for the main row at
+# stop 19 (docs/results/time_epfl_10_10.md; 25 s of it training, the box
+# regressions included). Stop 19 compares all 80 candidates' regressed boxes,
+# which first projected 15.3 minutes (14.4 with each candidate described once
+# less); the worker processes then ran two OpenBLAS and two OpenCV threads
+# each on two cores, and one each (posevote.evaluation.runner) took a frame
+# from 1.49 to 0.95 s per process with the same estimates. 10.5 minutes at
+# stop 18, with 80 verified candidates and a short list of 15; 11.6 at stop 16 on a
 # slower day of the machine, 26 s of training). Until stop 15 every vote peak
 # of the search was hill-climbed and the same projection gave 13.5 to 15.6
 # minutes from run to run (the machine's speed varies by about 10%, and a

@@ -306,6 +306,7 @@ def run_protocol(protocol: Protocol, out_dir: str | Path, *, jobs: int = 1, ever
                 else:
                     tasks.append(task)
             plan.append((str(model_path), record_path, tasks))
+    resumed = done
     if done:
         log(f"resuming: {done} of {total} test images already done")
     if progress is not None:
@@ -340,8 +341,8 @@ def run_protocol(protocol: Protocol, out_dir: str | Path, *, jobs: int = 1, ever
             key = f"{slug(row.name)}__{slug(split.name)}"
             records += read_records(out / "records" / f"{key}.jsonl")
     summary = summarize(protocol, chosen, records, facts, every=every)
-    previous = 0.0
-    if (out / "summary.json").is_file():
+    previous = 0.0   # the time of earlier runs counts only when this one resumed their records
+    if resumed and (out / "summary.json").is_file():
         try:
             previous = float(json.loads((out / "summary.json").read_text())
                              .get("wall_seconds_total", 0.0))
