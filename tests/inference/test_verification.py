@@ -17,6 +17,7 @@ from posevote.inference.verification import (
     jittered_boxes,
     nearest_view,
     regress_box,
+    regress_described,
     shift_box,
     train_box_regression,
     train_objectness,
@@ -243,6 +244,12 @@ def test_box_regression_moves_a_misplaced_box_onto_the_object(draw):
     # A box outside the image has no descriptor and stays where it is.
     far = (500.0, 500.0, 30.0, 30.0)
     assert regress_box(np.zeros((50, 50)), far, regressor, 0.0, window=window) == far
+    # From a known descriptor: the same box, and the moved box's descriptor with it.
+    moved, d = regress_described(img, off, box_descriptor(img, off, window), regressor, a,
+                                 window=window)
+    assert moved == regress_box(img, off, regressor, a, window=window)
+    np.testing.assert_array_equal(d, box_descriptor(img, moved, window))
+    assert regress_described(img, off, None, regressor, a, window=window) == (off, None)
 
 
 def test_nearest_view_within_the_window():

@@ -340,9 +340,10 @@ def regress_described(image: NDArray[np.floating], box: Sequence[float],
                       ) -> tuple[tuple[float, float, float, float], NDArray[np.float32] | None]:
     """:func:`regress_box` from the box's ``descriptor``; also returns the moved box's.
 
-    Each step describes the box once: ``steps`` descriptors in all, the
-    last one the returned box's (None when it cannot be computed; the box
-    then stays where the last descriptor was).
+    Each step describes the moved box once: ``steps`` descriptors in all,
+    the last one the returned box's. A move onto a box that cannot be
+    described (less than 8x8 pixels in the image) is not taken; the
+    returned descriptor is None only when ``descriptor`` is.
     """
     bins = regressor.shape[0]
     coef = regressor[int(np.mod(azimuth, 2.0 * np.pi) // (2.0 * np.pi / bins)) % bins]
