@@ -398,8 +398,9 @@ class PoseEstimator:
         their regressed boxes too, the search again runs inside the
         winner's, and the winner's regressed box is the one kept and
         described (the appearance chose it; the mode found again inside it
-        by the edges is not regressed anew). The edge votes find the car and tell its front from its
-        back; the descriptor of a well-placed box pins the viewpoint down.
+        by the edges is not regressed anew). The edge votes find the car
+        and tell its front from its back; the descriptor of a well-placed
+        box pins the viewpoint down.
         Takes effect when the model is fitted. The viewpoint is a training
         view's: with training views far apart (COIL's 20 degrees) it is
         coarser than the fit. On epfl-cv (every 4th frame) it took the

@@ -176,8 +176,9 @@ def verify_candidates(probes: ProbeSet, image: NDArray[np.float64],
         Size of the short list.
     regressor : ndarray, shape (B, 4, D + 1), optional
         Box regressions (:func:`train_box_regression`); with them, each
-        short-listed candidate's box is first regressed (:func:`regress_box`)
-        and the regressed box's descriptor is compared.
+        short-listed candidate's box is first regressed
+        (:func:`regress_described`) and the regressed box's descriptor is
+        compared.
     objectness_weight : float, optional
         With ``objectness``, a candidate's distance to its nearest training
         view minus this times the classifier's score of the compared
