@@ -95,3 +95,10 @@ def test_box_iou_broadcasts():
 
     boxes = np.array([[0, 0, 10, 10], [5, 0, 10, 10], [20, 20, 5, 5], [0, 0, 0, 0]], float)
     np.testing.assert_allclose(box_iou(boxes, [0, 0, 10, 10]), [1.0, 50 / 150, 0.0, 0.0])
+
+
+def test_box_centre_is_the_middle_pixel():
+    from posevote.geometry import box_centre
+
+    assert box_centre((0, 0, 1, 1)) == (0.0, 0.0)
+    assert box_centre(np.array([10.0, 20.0, 5.0, 4.0])) == (12.0, 21.5)

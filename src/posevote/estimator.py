@@ -25,7 +25,7 @@ from scipy.ndimage import binary_dilation
 
 from posevote.data.images import as_gray_float, read_image, read_mask
 from posevote.features.edges import EdgeFeatures, box_mask, detect_edges
-from posevote.geometry import angular_error, box_iou, viewing_direction
+from posevote.geometry import angular_error, box_centre, box_iou, viewing_direction
 from posevote.inference.recognition import explained_fraction, recognition_margin
 from posevote.inference.search import ProbeSet, probe_poses, viewpoint_grid
 from posevote.inference.verification import (
@@ -746,7 +746,7 @@ class PoseEstimator:
             appearance.add(img, box, float(pose_arr[i, 0]))
             if crops is not None:
                 crops.add(img, box)
-            centres[i] = [x + (w - 1) / 2.0, y + (h - 1) / 2.0]
+            centres[i] = box_centre(box)
             sizes[i] = [w, h]
             if progress is not None:
                 progress(1)
@@ -1004,9 +1004,8 @@ class PoseEstimator:
         else:
             box, d = regress_described(image, hyp.box, box_descriptor(image, hyp.box, window),
                                        regressor, hyp.azimuth, window=window)
-        x, y, w, h = box
-        out = replace(hyp, box=box, position=(x + (w - 1) / 2.0, y + (h - 1) / 2.0),
-                      scale=hyp.scale * h / hyp.box[3] if hyp.box[3] > 0 else hyp.scale)
+        out = replace(hyp, box=box, position=box_centre(box),
+                      scale=hyp.scale * box[3] / hyp.box[3] if hyp.box[3] > 0 else hyp.scale)
         if d is None:
             return out
         model = self._check_fitted()
@@ -1068,6 +1067,7 @@ class PoseEstimator:
                              "descriptors, which this model lacks (written by an older "
                              "posevote); retrain it")
         model = self._check_fitted()
+        regressor = self._box_regressor()
         found = verify_candidates(probes, image, descriptors, model.view_azimuth,
                                   model.view_elevation, window=self.descriptor_window_,
                                   n_candidates=self.verify_candidates,
@@ -1076,17 +1076,17 @@ class PoseEstimator:
                                   else np.radians(self.verify_tolerance_deg),
                                   objectness=getattr(self, "objectness_", None),
                                   shortlist=self.verify_shortlist,
-                                  regressor=self._box_regressor(),
+                                  regressor=regressor,
                                   objectness_weight=self.verify_objectness_weight)
         if found is None:
             return None
         (v, a, s), _, box = found
         size = probes.box[v] * probes.scale[s]
         centre = probes.translation[v, a, s]
-        if self._box_regressor() is not None:
+        if regressor is not None:
             # The winner was judged on its regressed box: search again inside that.
             size = np.array(box[2:])
-            centre = np.array([box[0] + (box[2] - 1) / 2.0, box[1] + (box[3] - 1) / 2.0])
+            centre = np.asarray(box_centre(box), dtype=np.float64)
         half = size * (0.5 + self.verify_margin)
         keep = np.all(np.abs(feats.xy - centre) <= half, axis=1)
         if not keep.any():
@@ -1108,8 +1108,7 @@ class PoseEstimator:
             # a smaller scale; the appearance chose this box, so stay near it.
             again = replace(again, score=np.where(
                 box_iou(again.boxes(), near.box) >= self.verify_overlap, again.score, 0.0))
-        return (feats.select(keep), maps, again,
-                box if self._box_regressor() is not None else None)
+        return feats.select(keep), maps, again, box if regressor is not None else None
 
     def _box_regressor(self) -> NDArray[np.float64] | None:
         """The box regressions with ``appearance_refine`` (None without it)."""

@@ -202,6 +202,12 @@ def rotate_points(points: ArrayLike, angle: float) -> NDArray[np.float64]:
     return np.stack([c * p[..., 0] - s * p[..., 1], s * p[..., 0] + c * p[..., 1]], axis=-1)
 
 
+def box_centre(box: ArrayLike) -> tuple[float, float]:
+    """Centre ``(u, v)`` of the pixels of an ``(x, y, w, h)`` box (pixel centres at integers)."""
+    x, y, w, h = (float(b) for b in np.asarray(box, dtype=np.float64))
+    return x + (w - 1) / 2.0, y + (h - 1) / 2.0
+
+
 def box_iou(box_a: ArrayLike, box_b: ArrayLike) -> NDArray[np.float64]:
     """Intersection over union of ``(x, y, w, h)`` boxes (broadcastable)."""
     a = np.asarray(box_a, dtype=np.float64)

@@ -18,6 +18,7 @@ from numpy.typing import NDArray
 
 from posevote.data.images import as_gray_float
 from posevote.data.training_set import object_mask
+from posevote.geometry import box_centre
 
 _BACKGROUNDS = ("astronaut", "camera", "coffee", "chelsea", "rocket", "brick", "grass", "gravel",
                 "coins", "moon", "clock", "immunohistochemistry")
@@ -127,7 +128,7 @@ def paste_on_clutter(view: NDArray, box: NDArray[np.float64], *, rng: np.random.
     scale = float(rng.uniform(*scale_range))
     alpha = float(np.radians(rng.uniform(*inplane_range_deg)))
     x, y, w, h = box
-    centre = np.array([x + (w - 1) / 2.0, y + (h - 1) / 2.0])
+    centre = np.asarray(box_centre(box), dtype=np.float64)
     rot = scale * np.array([[np.cos(alpha), -np.sin(alpha)], [np.sin(alpha), np.cos(alpha)]])
     corners = (np.array([[x, y], [x + w, y], [x, y + h], [x + w, y + h]]) - centre) @ rot.T
     lo, hi = corners.min(axis=0), corners.max(axis=0)
