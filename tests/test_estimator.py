@@ -70,6 +70,10 @@ def test_appearance_refine_takes_the_nearest_training_view(synthetic_training, d
     # With the verification, the candidates are judged on their regressed boxes.
     verified = again.set_params(verify_candidates=5).estimate(img).best
     assert verified is not None and box_iou(verified.box, object_box(img)) > 0.7
+    # With the jittered boxes' medoid view, still a training view near the truth.
+    jittered = again.set_params(verify_candidates=0, appearance_jitter=0.05).estimate(img).best
+    assert jittered is not None and jittered.box == best.box
+    assert np.min(np.abs(np.degrees(jittered.azimuth) - np.array([100.0, 120.0]))) < 1e-6
     plain = PoseEstimator().fit(images[:4], az[:4], boxes=boxes[:4])
     for extra in ({}, {"verify_candidates": 5}):
         with pytest.raises(ValueError, match="appearance_refine needs the box regression"):
@@ -150,6 +154,9 @@ def test_unfitted_raises():
         ({"verify_tolerance_deg": 200.0}, "verify_tolerance_deg must be in"),
         ({"verify_objectness_weight": -1.0}, "verify_objectness_weight must be a finite"),
         ({"verify_objectness_weight": float("nan")}, "verify_objectness_weight must be a finite"),
+        ({"appearance_jitter": -0.1}, "appearance_jitter must be in"),
+        ({"appearance_jitter": 0.5}, "appearance_jitter must be in"),
+        ({"appearance_jitter": float("nan")}, "appearance_jitter must be in"),
     ],
 )
 def test_bad_parameters(synthetic_training, kwargs, message):

@@ -12,9 +12,12 @@ from posevote.inference.search import ProbeSet
 from posevote.inference.verification import (
     background_boxes,
     box_descriptor,
+    box_grid,
     box_offsets,
     descriptor_length,
     jittered_boxes,
+    jittered_nearest_view,
+    medoid_view,
     nearest_view,
     regress_box,
     regress_described,
@@ -262,3 +265,47 @@ def test_nearest_view_within_the_window():
                         window=np.radians(45.0)) == 1
     assert nearest_view(probe, descriptors, directions[:1], directions[3],
                         window=np.radians(45.0)) is None
+
+
+def test_box_grid_shifts_and_scales_about_the_centre():
+    box = (40.0, 30.0, 100.0, 50.0)
+    grid = box_grid(box, 0.1)
+    assert grid.shape == (27, 4)
+    np.testing.assert_allclose(grid[13], box)
+    d = np.array([box_offsets(box, b) for b in grid])
+    np.testing.assert_allclose(np.unique(np.round(d[:, 0], 9)), [-0.1, 0.0, 0.1])
+    np.testing.assert_allclose(np.unique(np.round(d[:, 1], 9)), [-0.1, 0.0, 0.1])
+    np.testing.assert_allclose(np.unique(np.round(np.exp(d[:, 2]), 9)), [0.9, 1.0, 1.1])
+    np.testing.assert_allclose(d[:, 2], d[:, 3])   # the aspect is kept
+    np.testing.assert_allclose(box_grid(box, 0.0), np.tile(box, (27, 1)))
+
+
+def test_medoid_view_is_the_central_one():
+    directions = np.array([[np.cos(t), np.sin(t), 0.0] for t in np.radians([0, 10, 20, 170])])
+    assert medoid_view([0, 1, 2], directions) == 1
+    # An outlier does not drag it: the medoid is one of the views given.
+    assert medoid_view([3, 0, 1, 1, 2], directions) == 1
+    assert medoid_view([2], directions) == 2
+    assert medoid_view([0, 2], directions) == 0   # a tie goes to the first
+
+
+def test_jittered_nearest_view_agrees_with_the_single_box_on_a_clean_view(draw):
+    window = (48, 48)
+    az = np.radians(np.arange(0.0, 360.0, 30.0))
+    scenes = [_scene(draw, a) for a in az]
+    descriptors = np.array([box_descriptor(img, box, window) for img, box in scenes])
+    directions = np.array([[np.cos(a), np.sin(a), 0.0] for a in az])
+    img, box = _scene(draw, np.radians(62.0))
+    k = jittered_nearest_view(img, box, descriptors, directions, directions[2],
+                              window=np.radians(45.0), descriptor_window=window, fraction=0.05)
+    assert k == 2
+    single = nearest_view(box_descriptor(img, box, window), descriptors, directions,
+                          directions[2], window=np.radians(45.0))
+    assert single == k
+    # No view within the window, or no box that can be described: None.
+    assert jittered_nearest_view(img, box, descriptors[:1], directions[:1], directions[6],
+                                 window=np.radians(45.0), descriptor_window=window,
+                                 fraction=0.05) is None
+    assert jittered_nearest_view(img, (500.0, 500.0, 20.0, 20.0), descriptors, directions,
+                                 directions[2], window=np.radians(45.0),
+                                 descriptor_window=window, fraction=0.05) is None
