@@ -19,7 +19,10 @@ def test_coil_category_splits(coil_dir):
     assert len(cars.train.images) == 4 * 18
     assert cars.groups.count("cars seen") == 4 * 54 and cars.groups.count("cars unseen") == 2 * 72
     assert not cars.half_turn and proto.splits[1].half_turn
-    assert [r.name for r in proto.rows][-1] == "refined with instance model"
+    assert [r.name for r in proto.rows][-2:] == ["refined with instance model",
+                                                 "refined with instance model + morphing"]
+    assert proto.main_row == "refined with instance model"
+    assert proto.rows[-1].params is not None and proto.rows[-1].params["morph_views"]
 
 
 def test_epfl_protocols(epfl_dir):
