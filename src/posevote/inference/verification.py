@@ -361,6 +361,12 @@ def regress_described(image: NDArray[np.floating], box: Sequence[float],
     return out, d
 
 
+def views_within(view_directions: NDArray[np.float64], direction: NDArray[np.float64],
+                 window: float) -> NDArray[np.intp]:
+    """Indices of the views whose viewing direction lies within ``window`` radians of ``direction``."""
+    return np.flatnonzero(view_directions @ direction >= np.cos(window) - 1e-12)
+
+
 def nearest_view(descriptor: NDArray[np.float32], descriptors: NDArray[np.float32],
                  view_directions: NDArray[np.float64], direction: NDArray[np.float64], *,
                  window: float) -> int | None:
@@ -368,7 +374,7 @@ def nearest_view(descriptor: NDArray[np.float32], descriptors: NDArray[np.float3
 
     Returns its index, or None when no training view is that near ``direction``.
     """
-    near = np.flatnonzero(view_directions @ direction >= np.cos(window) - 1e-12)
+    near = views_within(view_directions, direction, window)
     if len(near) == 0:
         return None
     sq = np.einsum("ij,ij->i", descriptors[near], descriptors[near]) - 2.0 * (
@@ -437,7 +443,7 @@ def jittered_nearest_view(image: NDArray[np.floating], box: Sequence[float],
         The view's index; None when no training view lies within ``window``
         or no jittered box can be described.
     """
-    near = np.flatnonzero(view_directions @ direction >= np.cos(window) - 1e-12)
+    near = views_within(view_directions, direction, window)
     described = [box_descriptor(image, b, descriptor_window) for b in box_grid(box, fraction)]
     found = np.array([d for d in described if d is not None])
     if len(near) == 0 or len(found) == 0:
