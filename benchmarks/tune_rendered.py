@@ -26,16 +26,24 @@ error toward the nearest training view (positive: the estimate moved toward
 it; 0 at the 10-degree offset, which is halfway). Errors over 20 degrees
 (front/back confusions) are left out of the pull.
 
+With ``--clutter`` a second line gives, of the poses within 10 degrees, the
+% of positions within 5 px and the median in-plane error and |log scale|
+error of those more than 5 px off: whether the positions miss where the
+pose misses or where the alignment does. ``--records FILE`` writes one JSON
+line per test view and setting (signed azimuth error, position offset,
+in-plane error, estimated and true scale) for analyses of one's own.
+
 Usage::
 
     python benchmarks/tune_rendered.py [--clutter] [--setting "fit_view_shape=1.0" ...] [--jobs 2]
-        [--markdown docs/results/tuning_rendered.md]
+        [--markdown docs/results/tuning_rendered.md] [--records records.jsonl]
 """
 
 from __future__ import annotations
 
 import argparse
 import io
+import json
 import os
 import shlex
 import sys
@@ -49,6 +57,7 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 from _settings import parse_settings  # noqa: E402
 
 from posevote import PoseEstimator  # noqa: E402
+from posevote._io import atomic_write_text  # noqa: E402
 from posevote.demo import render_turntable  # noqa: E402
 from posevote.evaluation.synthetic import CLUTTER_SEARCH, paste_on_clutter  # noqa: E402
 
@@ -79,7 +88,7 @@ def run_object(obj: tuple[str, str, tuple[float, float, float]], params: dict, c
     if clutter:
         estimator.set_params(**{k: v for k, v in CLUTTER_SEARCH.items() if k not in params})
     rng = np.random.default_rng([seed, OBJECTS.index(obj)])
-    signed, offsets, seconds, pos_err = [], [], [], []
+    signed, offsets, seconds, pos_err, records = [], [], [], [], []
     for k, view in enumerate(views):
         if k % TRAIN_EVERY == 0:
             continue
@@ -93,11 +102,18 @@ def run_object(obj: tuple[str, str, tuple[float, float, float]], params: dict, c
         signed.append(float(np.degrees(np.angle(np.exp(1j * (est - view.azimuth))))))
         offsets.append(k % TRAIN_EVERY)
         seconds.append(result.seconds)
+        record = {"object": name, "azimuth_deg": 5 * k, "error_deg": signed[-1]}
         if truth is not None:
             pos_err.append(float(np.hypot(*(np.asarray(best.position) - truth)))
                            if best is not None else np.inf)
+            if best is not None:
+                dx, dy = (np.asarray(best.position) - truth).tolist()
+                record |= {"dx_px": dx, "dy_px": dy, "inplane_error_deg": float(np.degrees(
+                    np.angle(np.exp(1j * (best.inplane - pasted.inplane))))),
+                    "scale": best.scale, "true_scale": pasted.scale}
+        records.append(record)
     return {"name": name, "signed": signed, "offsets": offsets, "seconds": seconds,
-            "position_error_px": pos_err}
+            "position_error_px": pos_err, "records": records}
 
 
 def report(results: list[dict]) -> str:
@@ -122,7 +138,24 @@ def report(results: list[dict]) -> str:
         parts.append(f"{100 * np.mean(positions <= 5):5.1f}% {100 * np.mean(err > 30):5.1f}% "
                      f"{100 * np.mean(positions[near] <= 5):5.1f}%")
     per_object = ", ".join(f"{r['name']}: {np.median(np.abs(r['signed'])):.2f}" for r in results)
-    return "  ".join(parts) + f"\n    per object median: {per_object}\n"
+    return "  ".join(parts) + _alignment_line(results) + f"\n    per object median: {per_object}\n"
+
+
+def _alignment_line(results: list[dict]) -> str:
+    """Of the poses within 10 degrees: positions within 5 px, and how the others are off."""
+    recs = [r for res in results for r in res["records"] if "dx_px" in r]
+    if not recs:
+        return ""
+    close = [r for r in recs if abs(r["error_deg"]) < 10]
+    missed = [r for r in close if np.hypot(r["dx_px"], r["dy_px"]) > 5]
+    line = (f"\n    of the {len(close)} poses within 10 deg: "
+            f"{100 * (1 - len(missed) / max(len(close), 1)):.1f}% within 5 px")
+    if missed:
+        inplane = np.median([abs(r["inplane_error_deg"]) for r in missed])
+        log_scale = np.median([abs(np.log(r["scale"] / r["true_scale"])) for r in missed])
+        line += (f"; the {len(missed)} others: median in-plane error {inplane:.1f} deg, "
+                 f"|log scale| error {log_scale:.3f}")
+    return line
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -134,7 +167,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--markdown", help="also write the printed report here, as a markdown file")
+    ap.add_argument("--records", help="write one JSON line per test view and setting here")
     args = ap.parse_args(argv)
+    records: list[str] = []
     out = io.StringIO()
     out.write(f"rendered turntables, {len(OBJECTS)} objects, train 0:20:340, test the other 54"
               f"{' pasted on clutter' if args.clutter else ''}\n")
@@ -148,15 +183,16 @@ def main(argv: list[str] | None = None) -> int:
         with ProcessPoolExecutor(args.jobs) as pool:
             results = list(pool.map(run_object, OBJECTS, [params] * len(OBJECTS),
                                     [args.clutter] * len(OBJECTS), [args.seed] * len(OBJECTS)))
+        records += [json.dumps({"setting": text} | r) for res in results for r in res["records"]]
         block = f"[{text or 'defaults'}]\n  {report(results)}"
         print(block, end="", flush=True)
         out.write(block)
     wall = f"wall {time.perf_counter() - t0:.0f} s with {args.jobs} processes\n"
     print(wall, end="")
     out.write(wall)
+    if args.records:
+        atomic_write_text(args.records, "".join(line + "\n" for line in records))
     if args.markdown:
-        from posevote._io import atomic_write_text
-
         command = shlex.join(["python", "benchmarks/tune_rendered.py", *sys.argv[1:]])
         atomic_write_text(args.markdown, f"```\n$ {command}\n{out.getvalue()}```\n")
     return 0
