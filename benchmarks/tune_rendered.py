@@ -60,6 +60,7 @@ from posevote import PoseEstimator  # noqa: E402
 from posevote._io import atomic_write_text  # noqa: E402
 from posevote.demo import render_turntable  # noqa: E402
 from posevote.evaluation.synthetic import CLUTTER_SEARCH, paste_on_clutter  # noqa: E402
+from posevote.geometry import angle_difference  # noqa: E402
 
 #: (name, URDF in pybullet_data, rest orientation). The four named models and
 #: six of pybullet's random shapes, picked for having no rotational symmetry.
@@ -102,15 +103,15 @@ def run_object(obj: tuple[str, str, tuple[float, float, float]], params: dict, c
         signed.append(float(np.degrees(np.angle(np.exp(1j * (est - view.azimuth))))))
         offsets.append(k % TRAIN_EVERY)
         seconds.append(result.seconds)
-        record = {"object": name, "azimuth_deg": 5 * k, "error_deg": signed[-1]}
-        if truth is not None:
-            pos_err.append(float(np.hypot(*(np.asarray(best.position) - truth)))
-                           if best is not None else np.inf)
-            if best is not None:
-                dx, dy = (np.asarray(best.position) - truth).tolist()
-                record |= {"dx_px": dx, "dy_px": dy, "inplane_error_deg": float(np.degrees(
-                    np.angle(np.exp(1j * (best.inplane - pasted.inplane))))),
-                    "scale": best.scale, "true_scale": pasted.scale}
+        record = {"object": name, "azimuth_deg": STEP_DEG * k, "error_deg": signed[-1]}
+        if truth is not None and best is not None:
+            dx, dy = (np.asarray(best.position) - truth).tolist()
+            pos_err.append(float(np.hypot(dx, dy)))
+            record |= {"dx_px": dx, "dy_px": dy, "inplane_error_deg": float(np.degrees(
+                angle_difference(best.inplane, pasted.inplane))),
+                "scale": best.scale, "true_scale": pasted.scale}
+        elif truth is not None:
+            pos_err.append(np.inf)
         records.append(record)
     return {"name": name, "signed": signed, "offsets": offsets, "seconds": seconds,
             "position_error_px": pos_err, "records": records}
