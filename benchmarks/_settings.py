@@ -1,4 +1,8 @@
-"""``NAME=VALUE`` estimator settings given on the benchmarks' command lines."""
+"""``NAME=VALUE`` estimator settings given on the benchmarks' command lines.
+
+``group.field=VALUE`` sets one field of an option group (``search.scale_steps=5``);
+the result is a dict of :meth:`posevote.PoseEstimator.set_params` keys.
+"""
 
 from __future__ import annotations
 
@@ -8,11 +12,11 @@ from typing import Any
 
 
 def parse_settings(items: Iterable[str]) -> dict[str, Any]:
-    """``["a=1", "b=(2, 3)"]`` -> ``{"a": 1, "b": (2, 3)}`` (values as Python literals)."""
+    """``["a=1", "search.b=(2, 3)"]`` -> ``{"a": 1, "search__b": (2, 3)}`` (Python literals)."""
     out: dict[str, Any] = {}
     for item in items:
         name, sep, value = item.partition("=")
         if not sep:
             raise ValueError(f"expected NAME=VALUE, got {item!r}")
-        out[name.strip()] = ast.literal_eval(value)
+        out[name.strip().replace(".", "__")] = ast.literal_eval(value)
     return out

@@ -51,20 +51,20 @@ from _settings import parse_settings  # noqa: E402
 from posevote import PoseEstimator  # noqa: E402
 from posevote.data import read_coil  # noqa: E402
 from posevote.evaluation.metrics import summarize_errors  # noqa: E402
-from posevote.evaluation.synthetic import CLUTTER_SEARCH, paste_on_clutter  # noqa: E402
+from posevote.evaluation.synthetic import paste_on_clutter  # noqa: E402
 from posevote.geometry import angular_error  # noqa: E402
 
 OBJECTS = (1, 6, 8, 13, 15, 22, 23, 31, 33, 46, 54, 64, 76, 79, 91, 96)
 HALF_TURN = {1, 31, 46, 54, 79, 96, 13, 22, 33, 64}  # boxes and flat bottles
-_ONE = {"viewpoint_subdivisions": 1}
-_MORPH = {"morph_views": True, "viewpoint_subdivisions": 2}
+_ONE = {"search__viewpoint_subdivisions": 1}
+_MORPH = {"morph_views": True, "search__viewpoint_subdivisions": 2}
 ROWS = {
     "no weights": {"weights": False, "fitting": False, "local_refinement": False, **_ONE},
     "weights": {"weights": True, "fitting": False, "local_refinement": False, **_ONE},
     "weights + fitting": {"weights": True, "fitting": True, "local_refinement": False, **_ONE},
     "+ local refinement": {"weights": True, "fitting": True, "local_refinement": True, **_ONE},
     # Beyond the paper, not run by default: features morphed between views,
-    # two probes per gap (posevote.model.morph; docs/TUNING.md, "Morphing").
+    # two probes per gap (posevote.model.morph; docs/DEFAULTS.md, "Morphing").
     "weights + fitting + morphing": {"weights": True, "fitting": True,
                                      "local_refinement": False, **_MORPH},
     "+ local refinement + morphing": {"weights": True, "fitting": True,
@@ -73,8 +73,7 @@ ROWS = {
 DEFAULT_ROWS = ("no weights", "weights", "weights + fitting", "+ local refinement")
 # Settings that act when the model is fitted: a row that sets them gets a model of its own.
 FIT_SETTINGS = ("morph_views",)
-# The search settings for the pasted views: posevote.evaluation.synthetic.CLUTTER_SEARCH
-# (how they were chosen is written there).
+# Clean views start from the ``default`` preset, pasted views from ``cluttered``.
 
 
 def splits(kind: str) -> list[tuple[list[int], list[int]]]:
@@ -121,12 +120,10 @@ def run_split(obj: int, data: str, train_az: list[int], test_az: list[int], clut
         key = tuple(sorted(fit.items()))
         if key not in models:
             t0 = time.perf_counter()
-            models[key] = PoseEstimator(**{**params, **fit}).fit(train_images, train.poses,
-                                                                 boxes=train.boxes)
+            preset = "cluttered" if clutter else "default"
+            models[key] = PoseEstimator.from_preset(preset, **{**params, **fit}).fit(
+                train_images, train.poses, boxes=train.boxes)
             train_s.append(time.perf_counter() - t0)
-            if clutter:
-                models[key].set_params(**{k: v for k, v in CLUTTER_SEARCH.items()
-                                          if k not in params})
             models[key].estimate(images[0])  # compile once before timing
         return models[key]
 
@@ -215,9 +212,8 @@ def print_report(args, params, objects, rows, results, wall) -> None:
                 else "self-test on the training views 0:20:340" if args.selftest
                 else "train 0:20:340, test other 54")
     print(f"COIL-100 instance models, {len(objects)} objects, {protocol}"
-          f"{', cluttered + 20% occluded' if args.clutter else ''}; params {params or 'defaults'}")
-    if args.clutter:
-        print(f"search in clutter: {CLUTTER_SEARCH} (--param overrides)")
+          f"{', cluttered + 20% occluded' if args.clutter else ''}; preset "
+          f"{'cluttered' if args.clutter else 'default'}, overrides {params or 'none'}")
     width = max(20, *(len(r) + 1 for r in rows))
     print(f"{'row':<{width}}{'median':>8}{'mean':>8}{'p90':>8}{'<5deg':>8}{'ms/img':>8}"
           + ("{:>10}{:>9}".format("pos<=5px", ">30deg") if args.clutter else ""))

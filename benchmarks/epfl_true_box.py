@@ -3,7 +3,7 @@
 Each test frame of ``epfl-cv`` (cars 1-5 train / 6-10 test and back; cars
 11-20 are never read) is cropped to its true box grown by ``--margin`` of
 its size on every side, and the category model of the main row
-(``EPFL_CATEGORY_PARAMS``, "weights + fitting") estimates the pose in the
+(the ``category`` preset) estimates the pose in the
 crop. Compared with the same frames in full (``benchmarks/tune_epfl.py``),
 this separates what finding the car costs from what estimating its pose
 inside the box costs. ``--no-verify`` switches the appearance verification
@@ -31,7 +31,7 @@ import numpy as np  # noqa: E402
 
 from posevote import PoseEstimator  # noqa: E402
 from posevote.data import read_image  # noqa: E402
-from posevote.evaluation.protocols import EPFL_CATEGORY_PARAMS, epfl_cv  # noqa: E402
+from posevote.evaluation.protocols import epfl_cv  # noqa: E402
 from posevote.evaluation.runner import pose_error_deg  # noqa: E402
 
 
@@ -39,10 +39,8 @@ def run_part(data: str, split: int, part: int, n_parts: int, every: int, margin:
              verify: bool) -> list[float]:
     """Errors (degrees) of one share of one split's every-th test frames."""
     sp = epfl_cv(data).splits[split]
-    params = dict(EPFL_CATEGORY_PARAMS)
-    if not verify:
-        params["verify_candidates"] = 0
-    est = PoseEstimator(**params).fit(sp.train.images, sp.train.poses, boxes=sp.train.boxes,
+    est = PoseEstimator.from_preset("category", **({} if verify else {"appearance__candidates": 0}))
+    est.fit(sp.train.images, sp.train.poses, boxes=sp.train.boxes,
                                       instances=list(sp.train.instances))
     errors = []
     for i in list(range(0, len(sp.test.images), every))[part::n_parts]:

@@ -70,7 +70,8 @@ adds the two pruning rows).
 ## Defaults
 
 Chosen by cross-validation on training data only (COIL training views; EPFL
-within cars 1-10): [`TUNING.md`](TUNING.md),
+within cars 1-10): [`DEFAULTS.md`](DEFAULTS.md), one row per value (the
+studies' history: [`history/TUNING.md`](history/TUNING.md)),
 [`results/tuning_coil_cv.md`](results/tuning_coil_cv.md).
 """
 

@@ -12,10 +12,10 @@ Cases (the settings of the benchmarks that use them):
 - ``coil``: a COIL-100 instance model (views at 0, 20, ..., 340 degrees),
   clean 128x128 test views (``benchmarks/coil_instance.py``);
 - ``clutter``: the same model on test views pasted on 256x256 clutter, 20%
-  hidden, with the cluttered search (``CLUTTER_SEARCH``) and the local
+  hidden, with the ``cluttered`` preset (its search and local
   refinement;
 - ``epfl``: an EPFL car's instance model (40 evenly spaced frames of car 2,
-  ``EPFL_SINGLE_PARAMS``) on full 376x250 frames of the same car.
+  the ``turntable`` preset) on full 376x250 frames of the same car.
 
 Usage::
 
@@ -37,8 +37,7 @@ import numpy as np
 
 from posevote import PoseEstimator
 from posevote.data import read_coil, read_epfl
-from posevote.evaluation.protocols import EPFL_SINGLE_PARAMS
-from posevote.evaluation.synthetic import CLUTTER_SEARCH, paste_on_clutter
+from posevote.evaluation.synthetic import paste_on_clutter
 
 COIL_OBJECT = 6
 EPFL_CAR = 2
@@ -52,13 +51,13 @@ def coil_case(data: Path, n_images: int, clutter: bool
     other = [a for a in range(0, 360, 5) if a % 20]
     test = read_coil(folder, objects=[COIL_OBJECT],
                      azimuths_deg=other[::max(1, len(other) // n_images)][:n_images])
-    est = PoseEstimator().fit(train.load_images(), train.poses, boxes=train.boxes)
+    est = PoseEstimator.from_preset("cluttered" if clutter else "default")
+    est.fit(train.load_images(), train.poses, boxes=train.boxes)
     images = test.load_images()
     if clutter:
         rng = np.random.default_rng(0)
         images = [paste_on_clutter(im, box, rng=rng).image
                   for im, box in zip(images, test.boxes, strict=True)]
-        est.set_params(**CLUTTER_SEARCH, local_refinement=True)
     return est, images
 
 
@@ -71,7 +70,7 @@ def epfl_case(data: Path, n_images: int) -> tuple[PoseEstimator, list[np.ndarray
     chosen = sorted(set(np.linspace(0, n, 40, endpoint=False).round().astype(int).tolist()))
     rest = [i for i in range(n) if i not in chosen]
     test = rest[::max(1, len(rest) // n_images)][:n_images]
-    est = PoseEstimator(**EPFL_SINGLE_PARAMS).fit([seq.images[i] for i in chosen],
+    est = PoseEstimator.from_preset("turntable").fit([seq.images[i] for i in chosen],
                                                   seq.poses[chosen], boxes=seq.boxes[chosen])
     return est, [read_image(seq.images[i]) for i in test]
 

@@ -23,15 +23,16 @@ With ``--param`` settings, the study is repeated for each of them.
 
 Usage::
 
-    python benchmarks/tune_category_cv.py --param instance_margin=1.0 --param instance_margin=1.1
+    python benchmarks/tune_category_cv.py --param recognition.margin=1.0 --param recognition.margin=1.1
         [--markdown docs/results/tuning_category_cv.md]
     python benchmarks/tune_category_cv.py --margins 1.0,1.1,1.25,1.5,inf
-        [--param instance_search=True ...] [--markdown docs/results/tuning_instance_margin.md]
+        [--param recognition.search=False ...] [--markdown docs/results/tuning_instance_margin.md]
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import shlex
 import sys
@@ -47,6 +48,7 @@ from posevote import PoseEstimator  # noqa: E402
 from posevote.data import read_coil  # noqa: E402
 from posevote.evaluation.protocols import COIL_CATEGORIES  # noqa: E402
 from posevote.evaluation.runner import pose_error_deg  # noqa: E402
+from posevote.refinement.instance import RecognitionOptions  # noqa: E402
 
 
 def run(data: Path, params: dict) -> dict[str, tuple[float, float, float]]:
@@ -58,8 +60,8 @@ def run(data: Path, params: dict) -> dict[str, tuple[float, float, float]]:
             train = read_coil(data, objects=seen,
                               azimuths_deg=[a for i, a in enumerate(views) if i % 3 != r])
             test = read_coil(data, objects=seen, azimuths_deg=views[r::3])
-            est = PoseEstimator(**params).fit(train.images, train.poses, boxes=train.boxes,
-                                              instances=list(train.instances))
+            est = PoseEstimator.from_preset("default", **params).fit(
+                train.images, train.poses, boxes=train.boxes, instances=list(train.instances))
             for image, pose, inst in zip(test.images, test.poses, test.instances, strict=True):
                 res = est.estimate(image)
                 errors.append(pose_error_deg(res.best.azimuth, pose[0], half_turn=half))
@@ -84,11 +86,12 @@ def margin_records(data: Path, params: dict | None = None) -> list[dict]:
     for cat, half, kind, train_objs, train_az, test_objs, test_az in folds:
         train = read_coil(data, objects=train_objs, azimuths_deg=train_az)
         test = read_coil(data, objects=test_objs, azimuths_deg=test_az)
-        est = PoseEstimator(**{"prune": "moderate", **(params or {}), "instance_margin": 1.0}).fit(
-            train.images, train.poses, boxes=train.boxes, instances=list(train.instances))
+        est = PoseEstimator.from_preset("default", **{"prune": "moderate", **(params or {})})
+        recognition = dataclasses.replace(est.recognition or RecognitionOptions(), margin=1.0)
+        est.fit(train.images, train.poses, boxes=train.boxes, instances=list(train.instances))
         for image, pose in zip(test.images, test.poses, strict=True):
-            refined = est.set_params(recognize_instance=True).estimate(image)
-            plain = est.set_params(recognize_instance=False).estimate(image)
+            refined = est.set_params(recognition=recognition).estimate(image)
+            plain = est.set_params(recognition=None).estimate(image)
             records.append({
                 "category": cat, "kind": kind,
                 "plain": pose_error_deg(plain.best.azimuth, pose[0], half_turn=half),
@@ -123,7 +126,7 @@ def main() -> None:
     parser.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
                         help="one setting per --param, space-separated NAME=VALUE items "
                         "(each is a row; none: the defaults)")
-    parser.add_argument("--margins", help="comma-separated instance_margin values to study on "
+    parser.add_argument("--margins", help="comma-separated RecognitionOptions.margin values to study on "
                         "seen and left-out instances (e.g. 1.0,1.1,inf)")
     parser.add_argument("--markdown", type=Path)
     args = parser.parse_args()

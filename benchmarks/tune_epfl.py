@@ -1,24 +1,25 @@
 """Settings sweeps for the EPFL protocols, on development data only.
 
-``--protocol epfl-cv`` (default) runs the first row of
+``--protocol epfl-cv`` (default) runs the preset row of
 ``posevote evaluate epfl-cv`` (cars 1-5 train / 6-10 test, then the other
-way round; full frames): this is how ``EPFL_CATEGORY_PARAMS`` was chosen.
+way round; full frames): this is how the ``category`` preset was chosen.
 ``--protocol epfl-single`` runs the protocol of Fig. 6 (15, 30 and 40
 evenly spaced training frames, one instance model per car, the other
 frames tested) on cars 2-10 instead of car 1, which the protocol reports
-on: this is how ``EPFL_SINGLE_PARAMS`` was chosen.
+on: this is how the ``turntable`` preset was chosen.
 
 Both go through the same runner as ``posevote evaluate``, on every
-``--every``-th test frame, with ``EPFL_PARAMS`` plus the settings given, and
+``--every``-th test frame, with the protocol's preset plus the settings given
+(``group.field=VALUE``, e.g. ``kernel.position_sigma=6.0`` or ``appearance=None``), and
 print one line per setting: median, mean, % under 45 degrees, detection
 rate, seconds per frame (and, for epfl-single, the median and mean of each
 training-set size). Cars 11-20 (the held-out test set) are never read.
-Results are in docs/TUNING.md.
+Results are in docs/DEFAULTS.md.
 
 Usage::
 
     python benchmarks/tune_epfl.py [--protocol epfl-cv|epfl-single] [--cars 2,3,...]
-        [--every 8] [--setting "density_cap=0.5 position_sigma=6.0" ...] [--keep DIR]
+        [--every 8] [--setting "search.density_cap=0.5 kernel.position_sigma=6.0" ...] [--keep DIR]
 """
 
 from __future__ import annotations
@@ -36,7 +37,7 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
 from _settings import parse_settings  # noqa: E402
 
-from posevote.evaluation.protocols import EPFL_PARAMS, epfl_cv, epfl_single  # noqa: E402
+from posevote.evaluation.protocols import Row, epfl_cv, epfl_single  # noqa: E402
 from posevote.evaluation.runner import run_protocol  # noqa: E402
 
 
@@ -55,7 +56,7 @@ def main(argv: list[str] | None = None) -> int:
                              "(records, models, report) instead of discarding it")
     parser.add_argument("--setting", action="append", default=[],
                         help="space-separated NAME=VALUE items; one line per --setting "
-                             "(none: EPFL_PARAMS alone)")
+                             "(none: the protocol's preset row as it is)")
     args = parser.parse_args(argv)
     if args.cars:
         cars = [int(c) for c in args.cars.split(",")]
@@ -65,10 +66,12 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("car 1 is the epfl-single protocol's test car; develop on cars 2-10")
     builder = epfl_cv if args.protocol == "epfl-cv" else epfl_single
     base = builder(args.data, cars=cars)
-    row_name = base.rows[0].name  # the settings below decide what it runs
+    main = next(r for r in base.rows if r.name == base.main_row)
+    row_name = "setting"  # the settings below decide what it runs
     for k, text in enumerate(args.setting or [""]):
         overrides = parse_settings(text.split())
-        protocol = dataclasses.replace(base, base_params={**EPFL_PARAMS, **overrides})
+        protocol = dataclasses.replace(base, rows=(Row(name=row_name,
+                                                       params={**main.params, **overrides}),))
         start = time.perf_counter()
         with contextlib.ExitStack() as stack:
             out = (args.keep / str(k) if args.keep is not None
@@ -83,7 +86,7 @@ def main(argv: list[str] | None = None) -> int:
             groups = " | " + ", ".join(
                 f"{name.split()[0]}: {g['median']:.2f}/{g['mean']:.2f}"
                 for name, g in sorted(row["groups"].items(), key=lambda kv: int(kv[0].split()[0])))
-        print(f"{overrides or 'EPFL_PARAMS'}: n={m['n']} median {m['median']:.2f} "
+        print(f"{overrides or base.preset}: n={m['n']} median {m['median']:.2f} "
               f"mean {m['mean']:.1f} <45 {m['under_45']:.1f}% "
               f"detected {m['detection_rate']:.1f}% s/img {m['median_seconds']:.2f} "
               f"wall {time.perf_counter() - start:.0f} s{groups}", flush=True)

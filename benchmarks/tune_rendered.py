@@ -14,7 +14,7 @@ other 54 views are estimated, exactly the COIL instance protocol.
 ``--clutter`` pastes every test view on clutter as the cluttered COIL
 benchmark does (random position, scale 0.7-1.3, in-plane rotation +-30
 degrees, 20% occluded; seeded per object) and searches with that
-benchmark's settings (``posevote.evaluation.synthetic.CLUTTER_SEARCH``):
+benchmark's settings (the ``cluttered`` preset's search):
 the precision of the cluttered protocol at its own offsets, which the
 clutter self-test (true poses at training views) cannot measure. It also prints the % of positions
 within 5 px and of errors over 30 degrees.
@@ -35,7 +35,7 @@ in-plane error, estimated and true scale) for analyses of one's own.
 
 Usage::
 
-    python benchmarks/tune_rendered.py [--clutter] [--setting "fit_view_shape=1.0" ...] [--jobs 2]
+    python benchmarks/tune_rendered.py [--clutter] [--setting "kernel.position_sigma=2.5" ...] [--jobs 2]
         [--markdown docs/results/tuning_rendered.md] [--records records.jsonl]
 """
 
@@ -59,7 +59,7 @@ from _settings import parse_settings  # noqa: E402
 from posevote import PoseEstimator  # noqa: E402
 from posevote._io import atomic_write_text  # noqa: E402
 from posevote.demo import render_turntable  # noqa: E402
-from posevote.evaluation.synthetic import CLUTTER_SEARCH, paste_on_clutter  # noqa: E402
+from posevote.evaluation.synthetic import paste_on_clutter  # noqa: E402
 from posevote.geometry import angle_difference  # noqa: E402
 
 #: (name, URDF in pybullet_data, rest orientation). The four named models and
@@ -83,11 +83,11 @@ def run_object(obj: tuple[str, str, tuple[float, float, float]], params: dict, c
     azimuths = np.radians(np.arange(0, 360, STEP_DEG))
     views = render_turntable(azimuths, mesh=mesh, base_euler=euler, distance=None)
     train = views[::TRAIN_EVERY]
-    estimator = PoseEstimator(**params).fit(
+    # In clutter: the cluttered preset's search, the local refinement only if asked for.
+    base = ("cluttered", {"local_refinement": False}) if clutter else ("default", {})
+    estimator = PoseEstimator.from_preset(base[0], **{**base[1], **params}).fit(
         [v.image for v in train], [v.azimuth for v in train], boxes=[v.box for v in train],
         masks=[v.mask for v in train])
-    if clutter:
-        estimator.set_params(**{k: v for k, v in CLUTTER_SEARCH.items() if k not in params})
     rng = np.random.default_rng([seed, OBJECTS.index(obj)])
     signed, offsets, seconds, pos_err, records = [], [], [], [], []
     for k, view in enumerate(views):

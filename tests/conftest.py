@@ -79,3 +79,45 @@ def epfl_dir():
 def draw():
     """The synthetic object renderer, for tests that need other poses."""
     return draw_object
+
+
+def _toy_model(shared_feature=True):
+    """Three views; view features at distinct places plus one feature common to all."""
+    from posevote.features import EdgeFeatures
+    from posevote.model import build_model
+
+    views = []
+    for k in range(3):
+        xy = [[10.0 * k - 10, 5.0]]
+        theta = [0.3 * k]
+        if shared_feature:
+            xy.append([0.0, -20.0])
+            theta.append(1.0)
+        views.append(EdgeFeatures(xy=np.array(xy) + 50, theta=np.array(theta)))
+    return build_model(views, poses=np.radians([[0, 0, 0], [120, 0, 0], [240, 0, 0]]),
+                       centers=np.full((3, 2), 50.0), scales=np.ones(3),
+                       box_sizes=np.full((3, 2), 40.0), instances=[0, 0, 0],
+                       instance_names=["toy"], reference_size=40.0)
+
+
+@pytest.fixture
+def toy_model():
+    """A builder of a three-view toy model (call it; ``shared_feature=False`` drops the common feature)."""
+    return _toy_model
+
+
+@pytest.fixture
+def placed(draw):
+    """``placed(azimuth, centre=(110, 90))``: the synthetic object on a 200 x 220 canvas, and its box."""
+    def place(azimuth, centre=(110.0, 90.0)):
+        from posevote.data import object_box
+
+        img = np.zeros((200, 220))
+        obj = draw(azimuth, size=96)
+        x0, y0 = int(centre[0] - 48), int(centre[1] - 48)
+        img[y0:y0 + 96, x0:x0 + 96] = obj
+        x, y, w, h = object_box(obj)
+        return img, (x + x0, y + y0, w, h)
+
+    return place
+

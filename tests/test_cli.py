@@ -168,3 +168,58 @@ def test_train_category_model_with_pruning(synthetic_training, tmp_path):
     # (1.05), so the estimate abstains from naming one.
     payload = json.loads(result.output)
     assert payload["instance"] == "" and payload["instance_margin"] == pytest.approx(1.0, abs=0.01)
+
+
+def test_presets_are_listed_and_trained_from(training_folder, tmp_path):
+    runner = CliRunner()
+    result = runner.invoke(cli, ["presets"])
+    assert result.exit_code == 0, result.output
+    for name in ("default", "cluttered", "turntable", "category"):
+        assert f"\n{name} " in "\n" + result.output
+    assert "chosen on:" in result.output
+    out = tmp_path / "m.npz"
+    result = runner.invoke(cli, ["train", str(training_folder), "-o", str(out), "--preset",
+                                 "cluttered", "--param", "search.scale_steps=5",
+                                 "--param", "max_modes=2"])
+    assert result.exit_code == 0, result.output
+    with np.load(out) as data:
+        header = json.loads(bytes(data["header"]))
+    assert header["preset"]["name"] == "cluttered"
+    assert header["preset"]["overrides"]["max_modes"] == 2
+    assert header["params"]["search"]["scale_steps"] == 5
+
+
+@pytest.mark.parametrize(("args", "message"), [
+    (["--preset", "fast"], "unknown preset 'fast'"),
+    (["--param", "search.sigma=1"], "unknown estimator parameter 'search.sigma'"),
+    (["--param", "search=3"], "set the fields of search one by one"),
+    (["--param", "search.scale_steps=0"], "SearchOptions.scale_steps must be an integer"),
+    (["--param", "appearance.jitter=0.1"], "appearance is None"),
+])
+def test_train_refuses_bad_presets_and_params(training_folder, tmp_path, args, message):
+    result = CliRunner().invoke(cli, ["train", str(training_folder), "-o",
+                                      str(tmp_path / "m.npz"), *args])
+    assert result.exit_code in (1, 2) and message in result.output, result.output
+    assert not (tmp_path / "m.npz").exists()
+
+
+def test_written_files_follow_the_umask(model_file, test_image, tmp_path):
+    import os
+    import stat
+
+    old = os.umask(0o022)
+    try:
+        from posevote import PoseEstimator
+
+        out = tmp_path / "m.npz"
+        PoseEstimator.load(model_file).save(out)
+        assert stat.S_IMODE(out.stat().st_mode) == 0o644
+        os.chmod(out, 0o640)
+        PoseEstimator.load(model_file).save(out)   # an overwritten file keeps its mode
+        assert stat.S_IMODE(out.stat().st_mode) == 0o640
+        overlay = tmp_path / "o.png"
+        result = CliRunner().invoke(cli, ["estimate", str(model_file), str(test_image),
+                                          "--overlay", str(overlay)])
+        assert result.exit_code == 0 and stat.S_IMODE(overlay.stat().st_mode) == 0o644
+    finally:
+        os.umask(old)

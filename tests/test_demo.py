@@ -3,11 +3,11 @@ import pytest
 
 def test_demo_settings_are_validated_before_anything_is_written(tmp_path):
     pytest.importorskip("pybullet")
-    from posevote.demo import DEMO_PARAMS, run_demo
+    from posevote.demo import DEMO_PRESET, run_demo
 
-    assert DEMO_PARAMS["local_refinement"]
-    with pytest.raises(ValueError, match="scale_steps must be an integer"):
-        run_demo(tmp_path / "out", n_test=1, params={"scale_steps": 0})
+    assert DEMO_PRESET == "cluttered"
+    with pytest.raises(ValueError, match="SearchOptions.scale_steps must be an integer"):
+        run_demo(tmp_path / "out", n_test=1, overrides={"search__scale_steps": 0})
     assert not (tmp_path / "out").exists()
 
 
@@ -15,7 +15,7 @@ def test_demo_summary(tmp_path):
     pytest.importorskip("pybullet")
     from posevote.demo import run_demo
 
-    summary = run_demo(tmp_path, n_test=2, seed=1, params={"scale_steps": 3})
+    summary = run_demo(tmp_path, n_test=2, seed=1, overrides={"search__scale_steps": 3})
     assert summary["n"] == 2
     assert 0.0 <= summary["position_within_5px"] <= 100.0
     assert (tmp_path / "results.csv").read_text().count("\n") == 3

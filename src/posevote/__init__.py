@@ -3,11 +3,23 @@
 An implementation of Teney & Piater, "Continuous Pose Estimation in 2D Images
 at Instance and Category Levels" (CRV 2013). The data flow follows the
 subpackages: ``data`` -> ``features`` -> ``model`` -> ``inference`` ->
-``refinement`` -> ``evaluation``; :class:`PoseEstimator` ties them together.
+``refinement`` -> ``evaluation``; :class:`PoseEstimator` ties them together
+and :mod:`posevote.presets` names the tuned configurations.
 """
 
-from posevote.estimator import NotFittedError, PoseEstimator
-from posevote.results import Hypothesis, PoseEstimate
+from typing import Any
 
 __all__ = ["Hypothesis", "NotFittedError", "PoseEstimate", "PoseEstimator", "__version__"]
 __version__ = "0.1.0"
+
+_EXPORTS = {"PoseEstimator": "posevote.estimator", "NotFittedError": "posevote.estimator",
+            "Hypothesis": "posevote.results", "PoseEstimate": "posevote.results"}
+
+
+def __getattr__(name: str) -> Any:
+    # Imported on first use, so that `posevote --help` loads none of the stages.
+    if name in _EXPORTS:
+        import importlib
+
+        return getattr(importlib.import_module(_EXPORTS[name]), name)
+    raise AttributeError(f"module 'posevote' has no attribute {name!r}")

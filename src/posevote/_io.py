@@ -1,13 +1,33 @@
-"""Atomic file writing: a crash never leaves half a file behind."""
+"""Atomic file writing: a crash never leaves half a file behind.
+
+The temporary file is given the mode the file would have had if written
+directly: an overwritten file keeps its mode, a new one gets ``0666`` less
+the process's umask (0644 under umask 022), not ``mkstemp``'s private 0600.
+"""
 
 from __future__ import annotations
 
 import contextlib
 import os
+import stat
 import tempfile
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import IO
+
+
+def _umask() -> int:
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+def _target_mode(path: Path) -> int:
+    """The mode ``path`` has, or that a new file there would get."""
+    try:
+        return stat.S_IMODE(path.stat().st_mode)
+    except FileNotFoundError:
+        return 0o666 & ~_umask()
 
 
 @contextlib.contextmanager
@@ -20,6 +40,7 @@ def atomic_open(path: str | Path, mode: str = "wb") -> Iterator[IO]:
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
+        os.chmod(tmp, _target_mode(path))
         with os.fdopen(fd, mode) as fh:
             yield fh
             fh.flush()
@@ -49,6 +70,7 @@ def atomic_write_with(path: str | Path, writer: Callable[[Path], None]) -> None:
     fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent)
     os.close(fd)
     try:
+        os.chmod(tmp, _target_mode(path))
         writer(Path(tmp))
         os.replace(tmp, path)
     except BaseException:

@@ -1,4 +1,4 @@
-"""Command-line interface: ``posevote train | estimate | weights | evaluate | demo``.
+"""Command-line interface: ``posevote train | estimate | presets | weights | evaluate | demo``.
 
 Exit codes
 ----------
@@ -18,9 +18,9 @@ from pathlib import Path
 from typing import Any
 
 import click
-import numpy as np
 
-from posevote.estimator import PoseEstimator
+# The stages (numpy, OpenCV, numba, scipy, scikit-learn) are imported by the
+# commands that use them, so that `posevote --help` starts at once.
 
 EXIT_INPUT = 1
 EXIT_NOT_FOUND = 3
@@ -33,17 +33,30 @@ class InputError(click.ClickException):
 
 
 def _parse_params(items: tuple[str, ...]) -> dict[str, Any]:
+    """``--param`` items as :meth:`PoseEstimator.set_params` keys (``group.field`` -> ``group__field``)."""
+    import dataclasses
+
+    from posevote.estimator import OPTION_GROUPS, PoseEstimator
+
     params: dict[str, Any] = {}
-    valid = PoseEstimator().get_params()
+    top = PoseEstimator._param_names()
     for item in items:
         name, sep, value = item.partition("=")
         if not sep:
             raise click.BadParameter(f"{item!r}: expected NAME=VALUE", param_hint="--param")
-        if name not in valid:
+        group, dot, field = name.strip().partition(".")
+        if group not in top or (dot and (group not in OPTION_GROUPS or field not in {
+                f.name for f in dataclasses.fields(OPTION_GROUPS[group])})):
+            valid = [*top, *(f"{g}.{f.name}" for g, c in OPTION_GROUPS.items()
+                             for f in dataclasses.fields(c))]
             raise click.BadParameter(f"unknown estimator parameter {name!r}; valid: "
-                                     f"{', '.join(sorted(valid))}", param_hint="--param")
+                                     f"{', '.join(valid)}", param_hint="--param")
+        if not dot and group in OPTION_GROUPS and value.strip() != "None":
+            raise click.BadParameter(f"{item!r}: set the fields of {group} one by one "
+                                     f"({group}.FIELD=VALUE), or {group}=None to switch it off",
+                                     param_hint="--param")
         try:
-            params[name] = ast.literal_eval(value)
+            params[f"{group}__{field}" if dot else group] = ast.literal_eval(value.strip())
         except (ValueError, SyntaxError):
             raise click.BadParameter(f"{item!r}: VALUE must be a Python literal "
                                      "(number, True/False, None, tuple)", param_hint="--param"
@@ -91,20 +104,26 @@ def cli() -> None:
 @click.option("--cars", help="EPFL car numbers, e.g. 1-5.")
 @click.option("--azimuth-step-deg", type=float, default=None,
               help="COIL: train on the views at multiples of this step (default: all).")
+@click.option("--preset", default="default", show_default=True,
+              help="Named settings to start from (see `posevote presets`).")
 @click.option("--no-weights", is_flag=True, help="Store the model with weights switched off.")
 @click.option("--prune", type=click.Choice(["none", "moderate", "aggressive"]), default="none",
               show_default=True, help="Prune a category model by clustering (Sec. III-A).")
 @click.option("--param", "params", multiple=True, metavar="NAME=VALUE",
-              help="Estimator hyper-parameter (repeatable), e.g. position_sigma=2.5.")
+              help="Override a preset value (repeatable), e.g. kernel.position_sigma=2.5 or "
+                   "appearance=None.")
 def train(source: Path, output: Path, layout: str, objects: str | None, cars: str | None,
-          azimuth_step_deg: float | None, no_weights: bool, prune: str,
+          azimuth_step_deg: float | None, preset: str, no_weights: bool, prune: str,
           params: tuple[str, ...]) -> None:
     """Train a model from pose-annotated images in SOURCE.
 
     Several instances (an ``instance`` column, several COIL objects or EPFL
     cars) make a category model.
     """
+    import numpy as np
+
     from posevote.data import read_coil, read_epfl, read_poses_csv
+    from posevote.estimator import PoseEstimator
 
     settings = _parse_params(params)
     if no_weights:
@@ -125,7 +144,7 @@ def train(source: Path, output: Path, layout: str, objects: str | None, cars: st
             if not car_list:
                 raise click.BadParameter("--layout epfl needs --cars", param_hint="--cars")
             ts = read_epfl(source, cars=car_list)
-        est = PoseEstimator(**settings)
+        est = PoseEstimator.from_preset(preset, **settings)
         with _progress(len(ts), "features") as bar:
             est.fit(list(ts.images), ts.poses, boxes=ts.boxes,
                     masks=list(ts.masks) if ts.masks else None,
@@ -159,16 +178,16 @@ def estimate(model: Path, image: Path, as_json: bool, overlay: Path | None,
              no_fitting: bool, min_score: float | None, threads: int) -> None:
     """Estimate the pose of the object in IMAGE with a trained MODEL."""
     from posevote.data import read_image
-    from posevote.evaluation.plots import draw_overlay, write_png
+    from posevote.estimator import PoseEstimator
 
     try:
         est = PoseEstimator.load(model)
         changes: dict[str, Any] = {"n_jobs": threads}
         if inplane_range_deg is not None:
-            changes["inplane_range_deg"] = tuple(inplane_range_deg)
+            changes["search__inplane_range_deg"] = tuple(inplane_range_deg)
         if scale_range is not None:
-            changes["scale_range"] = tuple(scale_range)
-            changes["scale_steps"] = max(est.scale_steps, 5)
+            changes["search__scale_range"] = tuple(scale_range)
+            changes["search__scale_steps"] = max(est.search.scale_steps, 5)
         if no_fitting:
             changes["fitting"] = False
         if min_score is not None:
@@ -177,6 +196,8 @@ def estimate(model: Path, image: Path, as_json: bool, overlay: Path | None,
         img = read_image(image)
         result = est.estimate(img)
         if overlay is not None:
+            from posevote.evaluation.plots import draw_overlay, write_png
+
             write_png(overlay, draw_overlay(img, result))
     except (FileNotFoundError, ValueError, TypeError) as exc:
         raise InputError(str(exc)) from None
@@ -197,6 +218,20 @@ def estimate(model: Path, image: Path, as_json: bool, overlay: Path | None,
 
 
 @cli.command()
+@click.option("-v", "--verbose", is_flag=True, help="Also print each preset's parameters.")
+def presets(verbose: bool) -> None:
+    """List the named presets, what each is for and where it was chosen."""
+    from posevote.estimator import PoseEstimator
+    from posevote.presets import PRESETS
+
+    for p in PRESETS.values():
+        click.echo(f"{p.name:10s} {p.description}")
+        click.echo(f"{'':10s} chosen on: {p.chosen_on} ({p.script})")
+        if verbose:
+            click.echo(f"{'':10s} {PoseEstimator.from_preset(p.name)!r}")
+
+
+@cli.command()
 @click.argument("model", type=click.Path(path_type=Path))
 @click.option("-o", "--output", required=True, type=click.Path(path_type=Path),
               help="PNG file to write.")
@@ -204,6 +239,7 @@ def estimate(model: Path, image: Path, as_json: bool, overlay: Path | None,
               help="Number of training views shown.")
 def weights(model: Path, output: Path, views: int) -> None:
     """Draw the model's feature weights (the paper's Fig. 3)."""
+    from posevote.estimator import PoseEstimator
     from posevote.evaluation.plots import plot_weights
 
     try:

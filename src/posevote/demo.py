@@ -22,7 +22,7 @@ from numpy.typing import NDArray
 from posevote.estimator import PoseEstimator
 from posevote.evaluation.metrics import summarize_errors
 from posevote.evaluation.plots import draw_overlay, write_png
-from posevote.evaluation.synthetic import CLUTTER_SEARCH, paste_on_clutter
+from posevote.evaluation.synthetic import paste_on_clutter
 from posevote.geometry import angular_error
 
 
@@ -122,21 +122,16 @@ def render_turntable(azimuths: NDArray[np.float64], *, size: int = 128, elevatio
         pybullet.disconnect(client)
 
 
-#: The demo's estimator settings: the search of the cluttered COIL benchmark
-#: (wide in-plane and scale ranges in 7 scales, kernel in object units with
-#: chance correction and a saturated density) with the local refinement.
-#: Chosen on seeds 1-3 of the demo's own generator, never on seed 0, which
-#: the demo reports (``benchmarks/tune_demo.py``, docs/TUNING.md): 36% of 72
-#: views under 22.5 degrees and 36% within 5 px, against 24% and 15% with
-#: the former settings (5 scales, pixel kernel, clutter weighting); 38% and
-#: 38% since the estimator's ``narrow_scale``; 44% and 42% with in-plane
-#: steps of 5 degrees instead of 10, as the cluttered COIL benchmark.
-DEMO_PARAMS: dict[str, Any] = {**CLUTTER_SEARCH, "local_refinement": True}
+#: The demo's preset: the cluttered search with the local refinement. Its
+#: values were chosen on the cluttered COIL benchmark and checked on seeds 1-3
+#: of the demo's own generator, never on seed 0, which the demo reports
+#: (``benchmarks/tune_demo.py``, docs/DEFAULTS.md).
+DEMO_PRESET = "cluttered"
 
 
 def run_demo(out_dir: str | Path, *, n_test: int = 24, seed: int = 0,
              log: Callable[[str], None] = lambda s: None,
-             params: dict[str, Any] | None = None) -> dict:
+             overrides: dict[str, Any] | None = None) -> dict:
     """Train on rendered views, estimate cluttered test images, write overlays.
 
     Parameters
@@ -149,8 +144,9 @@ def run_demo(out_dir: str | Path, *, n_test: int = 24, seed: int = 0,
         Seed of the test azimuths, placements and backgrounds.
     log : callable, optional
         Receives progress lines (the CLI prints them).
-    params : dict, optional
-        Estimator settings on top of :data:`DEMO_PARAMS`.
+    overrides : dict, optional
+        :meth:`~posevote.estimator.PoseEstimator.set_params` overrides of the
+        :data:`DEMO_PRESET` preset.
 
     Returns
     -------
@@ -163,7 +159,7 @@ def run_demo(out_dir: str | Path, *, n_test: int = 24, seed: int = 0,
     out_dir = Path(out_dir)
     train = render_turntable(np.radians(np.arange(0, 360, 20)))
     log(f"rendered {len(train)} training views of pybullet's duck (one every 20 degrees)")
-    estimator = PoseEstimator(**{**DEMO_PARAMS, **(params or {})})
+    estimator = PoseEstimator.from_preset(DEMO_PRESET, **(overrides or {}))
     estimator.fit([v.image for v in train], [v.azimuth for v in train],
                   boxes=[v.box for v in train], masks=[v.mask for v in train])
     log(f"trained: {estimator.model_.n_features} features")

@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.spatial.transform import Rotation
 
 TWO_PI = 2.0 * np.pi
 
@@ -126,6 +125,9 @@ def rotation_from_pose(azimuth: float, elevation: float, inplane: float) -> NDAr
     ndarray, shape (3, 3)
         Orthonormal rotation with determinant +1.
     """
+    # imported where used, so that a command-line start does not pay for it
+    from scipy.spatial.transform import Rotation
+
     r_turn = Rotation.from_euler("z", azimuth).as_matrix()
     # Raising the camera by `elevation` tilts the scene about the camera's X
     # axis so that the object's top turns towards the camera.
@@ -154,6 +156,8 @@ def pose_from_rotation(R_cam_obj: ArrayLike) -> tuple[float, float, float]:
     M = R @ _R_CAM_OBJ_ZERO.T  # = Rz(inplane) Rx(el) R0 Rz(az) R0^T
     # R0 Rz(az) R0^T is a rotation about R0 @ z = -Y (camera), i.e. about Y.
     # So M = Rz(c) Rx(b) Ry(a') : intrinsic z-x-y Euler angles.
+    from scipy.spatial.transform import Rotation
+
     c, b, a = Rotation.from_matrix(M).as_euler("ZXY")
     return float(wrap_angle(-a)), float(b), float(wrap_angle(c))
 

@@ -19,10 +19,13 @@ def test_coil_category_splits(coil_dir):
     assert len(cars.train.images) == 4 * 18
     assert cars.groups.count("cars seen") == 4 * 54 and cars.groups.count("cars unseen") == 2 * 72
     assert not cars.half_turn and proto.splits[1].half_turn
-    assert [r.name for r in proto.rows][-2:] == ["refined with instance model",
-                                                 "refined with instance model + morphing"]
-    assert proto.main_row == "refined with instance model"
+    names = [r.name for r in proto.rows]
+    assert names[-3:] == ["refined with instance model (paper: near the category's mode)",
+                          "refined with instance model, each instance searching on its own",
+                          "refined with instance model, own search + morphing"]
+    assert proto.preset == "default" and proto.main_row == names[-2]
     assert proto.rows[-1].params is not None and proto.rows[-1].params["morph_views"]
+    assert proto.rows[-3].params["recognition"].search is False
 
 
 def test_epfl_protocols(epfl_dir):
@@ -47,7 +50,8 @@ def test_epfl_single_on_development_cars(epfl_dir):
                                            "car03-15", "car03-30", "car03-40"]
     assert {n for s in dev.splits for n in s.train.instances + s.test.instances} == {
         "car02", "car03"}
-    assert dev.base_params == load_protocol("epfl-single", epfl_dir).base_params
+    assert dev.preset == load_protocol("epfl-single", epfl_dir).preset == "turntable"
+    assert dev.rows == load_protocol("epfl-single", epfl_dir).rows
     assert "cars 2, 3" in dev.description
     with pytest.raises(ValueError, match="at least one car"):
         epfl_single(epfl_dir, cars=())
@@ -58,4 +62,19 @@ def test_epfl_10_10_default_rows_exist():
     from posevote.evaluation.protocols import _EPFL_10_10_DEFAULT_ROWS, _EPFL_ROWS
 
     assert set(_EPFL_10_10_DEFAULT_ROWS) <= {r.name for r in _EPFL_ROWS}
-    assert _EPFL_10_10_DEFAULT_ROWS[0] == _EPFL_ROWS[0].name
+    assert _EPFL_10_10_DEFAULT_ROWS[0] == _EPFL_ROWS[1].name
+
+
+def test_every_row_builds_an_estimator_from_its_protocols_preset(coil_dir, epfl_dir):
+    from posevote import PoseEstimator
+
+    for name in ("coil-category", "epfl-single", "epfl-cv"):
+        proto = load_protocol(name, coil_dir.parent)
+        assert proto.main_row in {r.name for r in proto.rows}
+        for row in proto.rows:
+            PoseEstimator.from_preset(proto.preset, **row.params)._validate_params()
+    # The paper's EPFL row runs edges alone; the preset's row adds the appearance stages.
+    cv = load_protocol("epfl-cv", coil_dir.parent)
+    paper, preset = (PoseEstimator.from_preset(cv.preset, **r.params) for r in cv.rows[:2])
+    assert paper.appearance is None and preset.appearance is not None
+    assert cv.rows[0].name.startswith("paper:")

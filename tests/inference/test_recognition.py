@@ -41,7 +41,9 @@ def _reference(test, model, hyp, *, sigma, kappa, kappa_v):
 def scene(fitted_estimator, draw):
     image = draw(np.radians(40.0), size=128)
     result = fitted_estimator.estimate(image)
-    features, _ = fitted_estimator._features(image)
+    from posevote.features.edges import extract_edges
+
+    features = extract_edges(image, fitted_estimator.edges, training=False)
     return fitted_estimator, result.best, features
 
 

@@ -26,13 +26,17 @@ def test_viewpoint_grid_regular_step(fitted_estimator):
 
 
 def test_per_scale_maps_and_chance_correction(fitted_estimator, draw):
+    from posevote.features.edges import extract_edges
     from posevote.inference import probe_poses
+    from posevote.inference.search import image_maps
     from posevote.inference.voting import scaled_features
 
     est = fitted_estimator
-    feats, shape = est._features(draw(np.radians(60)))
+    image = draw(np.radians(60))
+    feats, shape = extract_edges(image, est.edges, training=False), image.shape
     scales = np.array([0.9, 1.1])
-    maps = [est._maps(*scaled_features(feats, shape, s), sigma=3.0, scale=s) for s in scales]
+    maps = [image_maps(*scaled_features(feats, shape, s), est.setup(), sigma=3.0, scale=s)
+            for s in scales]
     kw = dict(azimuths=np.radians([40.0, 60.0]), elevations=np.zeros(2), inplanes=np.zeros(1),
               scales=scales, viewpoint_kappa=est.viewpoint_kappa_)
     raw = probe_poses(est.model_, maps, **kw)
@@ -55,11 +59,14 @@ def test_probe_boxes_are_the_viewpoint_box_at_each_scale_around_each_translation
 
 
 def test_threads_give_the_same_probes(fitted_estimator, draw):
+    from posevote.features.edges import extract_edges
     from posevote.inference import probe_poses
+    from posevote.inference.search import image_maps
 
     est = fitted_estimator
-    feats, shape = est._features(draw(np.radians(130)))
-    maps = est._maps(feats, shape, sigma=3.0)
+    image = draw(np.radians(130))
+    feats = extract_edges(image, est.edges, training=False)
+    maps = image_maps(feats, image.shape, est.setup(), sigma=3.0)
     az, el = viewpoint_grid(est.model_)
     kw = dict(azimuths=az, elevations=el, inplanes=np.radians([-10.0, 0.0, 10.0]),
               scales=np.array([0.9, 1.0, 1.1]), viewpoint_kappa=est.viewpoint_kappa_)

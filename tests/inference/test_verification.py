@@ -1,51 +1,19 @@
-"""Appearance verification: descriptors of boxes and the choice among search candidates."""
+"""Appearance verification: the choice among search candidates, and the nearest view."""
 
 from __future__ import annotations
 
 import numpy as np
-import pytest
-from hypothesis import given
-from hypothesis import strategies as st
 
-from posevote.geometry import box_iou
+from posevote.features.appearance import box_descriptor, descriptor_length
 from posevote.inference.search import ProbeSet
 from posevote.inference.verification import (
-    background_boxes,
-    box_descriptor,
     box_grid,
-    box_offsets,
-    descriptor_length,
-    jittered_boxes,
     jittered_nearest_view,
     medoid_view,
     nearest_view,
-    regress_box,
-    regress_described,
-    shift_box,
-    train_box_regression,
-    train_objectness,
     verify_candidates,
-    window_shape,
 )
-
-
-def test_window_follows_the_boxes_shape():
-    assert window_shape(np.array([[200.0, 100.0], [180.0, 100.0], [220.0, 100.0]])) == (48, 96)
-    assert window_shape(np.array([[10.0, 100.0]])) == (48, 24)
-    assert window_shape(np.array([[1000.0, 10.0]])) == (48, 144)
-
-
-def test_descriptor_of_a_crop_is_where_it_lies(draw):
-    obj = draw(np.radians(30.0), size=96)
-    big = np.zeros((200, 300))
-    big[50:146, 120:216] = obj
-    window = (48, 48)
-    a = box_descriptor(obj, (0, 0, 96, 96), window)
-    b = box_descriptor(big, (120, 50, 96, 96), window)
-    assert a is not None and a.shape == (descriptor_length(window),)
-    np.testing.assert_allclose(a, b, atol=1e-6)
-    assert box_descriptor(big, (295, 10, 40, 40), window) is None
-    assert box_descriptor(big, (-100, -100, 50, 50), window) is None
+from posevote.model.appearance import box_offsets
 
 
 def _probes(centres, scores, size=96.0):
@@ -135,27 +103,6 @@ def test_the_objectness_weight_trades_distance_for_object_likeness(draw):
         assert found is not None and found[0] == winner
 
 
-def test_background_boxes_miss_the_object_and_repeat_with_the_seed():
-    box = (100.0, 60.0, 120.0, 60.0)
-    a = background_boxes((250, 376), box, np.random.default_rng(3), attempts=50)
-    b = background_boxes((250, 376), box, np.random.default_rng(3), attempts=50)
-    assert a == b and len(a) > 10
-    for x, y, w, h in a:
-        iw = max(0.0, min(x + w, 220.0) - max(x, 100.0))
-        ih = max(0.0, min(y + h, 120.0) - max(y, 60.0))
-        assert iw * ih / (w * h + 120.0 * 60.0 - iw * ih) < 0.4
-
-
-def test_objectness_separates_object_from_background():
-    rng = np.random.default_rng(0)
-    pos = rng.normal(1.0, 0.3, (30, 8)).astype(np.float32)
-    neg = rng.normal(-1.0, 0.3, (60, 8)).astype(np.float32)
-    w = train_objectness(pos, neg)
-    assert w is not None and w.shape == (9,)
-    assert np.all(pos @ w[:-1] + w[-1] > 0) and np.all(neg @ w[:-1] + w[-1] < 0)
-    assert train_objectness(pos, neg[:5]) is None
-
-
 def test_no_candidate_inside_the_image_gives_none(draw):
     window = (48, 48)
     train = np.array([box_descriptor(draw(0.0, size=96), (0, 0, 96, 96), window)])
@@ -164,95 +111,36 @@ def test_no_candidate_inside_the_image_gives_none(draw):
                              window=window, n_candidates=5, tolerance=0.2) is None
 
 
-def test_estimator_verification_round_trip(fitted_estimator, draw, tmp_path):
+def test_verify_searches_again_inside_the_winners_box(draw, tmp_path):
     from posevote import PoseEstimator
+    from posevote.inference.search import search_maps
+    from posevote.inference.verification import verify
+    from posevote.model.appearance import AppearanceOptions
 
-    est = PoseEstimator(**{**fitted_estimator.get_params(), "verify_candidates": 10})
-    est.set_params(scale_range=(0.9, 1.1))
-    est.fit([draw(a) for a in np.radians(np.arange(0, 360, 20.0))],
-            np.radians(np.arange(0, 360, 20.0)))
-    assert est.view_descriptors_.shape[0] == 18
-    image = draw(np.radians(60.0))
-    result = est.estimate(image)
-    assert result.found
-    assert abs(np.degrees(result.best.azimuth) - 60.0) < 10.0
+    az = np.radians(np.arange(0, 360, 20.0))
+    est = PoseEstimator(appearance=AppearanceOptions(candidates=10, shortlist=10))
+    est.fit([draw(a) for a in az], az)
+    assert est.appearance_model_.descriptors.shape[0] == 18
+    scene = np.zeros((200, 300))
+    scene[36:164, 20:148] = draw(np.radians(60.0))
+    scene[36:164, 160:288] = np.random.default_rng(0).random((128, 128)) > 0.7
+    feats, img = est._read(scene)
+    setup = est.setup()
+    maps = search_maps(feats, img.shape, est.model_, setup)
+    probes = est.probe(scene)[0]
+    located = verify(probes, img, feats, maps, est.model_, est.appearance_model_,
+                     est.appearance, setup)
+    assert located is not None
+    inside, _, again, box = located
+    assert 0 < len(inside) < len(feats) and 10 < box[0] + box[2] / 2 < 160
+    assert again.score.shape[0] <= probes.score.shape[0]
+    result = est.estimate(scene)
+    assert result.found and abs(np.degrees(result.best.azimuth) - 60.0) < 15.0
     est.save(tmp_path / "m.npz")
     loaded = PoseEstimator.load(tmp_path / "m.npz")
-    np.testing.assert_array_equal(loaded.view_descriptors_, est.view_descriptors_)
-    if est.objectness_ is None:
-        assert loaded.objectness_ is None
-    else:
-        np.testing.assert_array_equal(loaded.objectness_, est.objectness_)
-    assert loaded.estimate(image).best == result.best
-    del loaded.view_descriptors_
-    with pytest.raises(ValueError, match="retrain"):
-        loaded.estimate(image)
-
-
-_BOX = st.tuples(st.floats(-50, 200), st.floats(-50, 200), st.floats(5, 300), st.floats(5, 300))
-
-
-@given(_BOX, _BOX)
-def test_box_offsets_lead_to_the_target(box, target):
-    np.testing.assert_allclose(shift_box(box, box_offsets(box, target)), target, atol=1e-6)
-    np.testing.assert_allclose(box_offsets(target, target), 0.0, atol=1e-12)
-
-
-def test_jittered_boxes_stay_near_and_repeat():
-    box = (40.0, 30.0, 100.0, 50.0)
-    a = jittered_boxes(box, np.random.default_rng(3), n=50)
-    b = jittered_boxes(box, np.random.default_rng(3), n=50)
-    assert a == b and len(a) == 50
-    d = np.array([box_offsets(box, j) for j in a])
-    assert np.all(np.abs(d[:, :2]) <= 0.15 * np.exp(0.15) + 1e-9)
-    assert np.all(np.abs(d[:, 2:]) <= 0.15 * 1.5 + 1e-9)
-    assert np.ptp(d, axis=0).min() > 0.05
-
-
-def _scene(draw, azimuth, centre=(110.0, 90.0)):
-    """The synthetic object at ``azimuth`` on a 200 x 220 canvas, and its box."""
-    from posevote.data import object_box
-
-    img = np.zeros((200, 220))
-    obj = draw(azimuth, size=96)
-    x0, y0 = int(centre[0] - 48), int(centre[1] - 48)
-    img[y0:y0 + 96, x0:x0 + 96] = obj
-    x, y, w, h = object_box(obj)
-    return img, (x + x0, y + y0, w, h)
-
-
-def test_box_regression_moves_a_misplaced_box_onto_the_object(draw):
-    rng = np.random.default_rng(0)
-    window = (48, 48)
-    az = np.radians(np.arange(0.0, 360.0, 5.0))
-    descriptors, offsets, azimuths = [], [], []
-    for a in az:
-        img, box = _scene(draw, a)
-        for b in jittered_boxes(box, rng, n=12):
-            descriptors.append(box_descriptor(img, b, window))
-            offsets.append(box_offsets(b, box))
-            azimuths.append(a)
-    regressor = train_box_regression(np.array(descriptors), np.array(offsets), np.array(azimuths),
-                                     bins=4, alpha=10.0)
-    assert regressor.shape == (4, 4, descriptor_length(window) + 1)
-    before, after = [], []
-    for a in np.radians([25.0, 95.0, 205.0, 310.0]):
-        img, truth = _scene(draw, a, centre=(100.0, 100.0))
-        x, y, w, h = truth
-        off = (x + 0.15 * w, y - 0.12 * h, 0.85 * w, 1.12 * h)
-        before.append(box_iou(off, truth))
-        after.append(box_iou(regress_box(img, off, regressor, a, window=window), truth))
-    # Every box ends nearer the object (IoU 0.77 before; 0.82-0.96 after over seeds 0-3).
-    assert np.mean(after) > np.mean(before) + 0.08 and min(after) > max(before)
-    # A box outside the image has no descriptor and stays where it is.
-    far = (500.0, 500.0, 30.0, 30.0)
-    assert regress_box(np.zeros((50, 50)), far, regressor, 0.0, window=window) == far
-    # From a known descriptor: the same box, and the moved box's descriptor with it.
-    moved, d = regress_described(img, off, box_descriptor(img, off, window), regressor, a,
-                                 window=window)
-    assert moved == regress_box(img, off, regressor, a, window=window)
-    np.testing.assert_array_equal(d, box_descriptor(img, moved, window))
-    assert regress_described(img, off, None, regressor, a, window=window) == (off, None)
+    np.testing.assert_array_equal(loaded.appearance_model_.descriptors,
+                                  est.appearance_model_.descriptors)
+    assert loaded.estimate(scene).best == result.best
 
 
 def test_nearest_view_within_the_window():
@@ -289,13 +177,13 @@ def test_medoid_view_is_the_central_one():
     assert medoid_view([0, 2], directions) == 0   # a tie goes to the first
 
 
-def test_jittered_nearest_view_agrees_with_the_single_box_on_a_clean_view(draw):
+def test_jittered_nearest_view_agrees_with_the_single_box_on_a_clean_view(draw, placed):
     window = (48, 48)
     az = np.radians(np.arange(0.0, 360.0, 30.0))
-    scenes = [_scene(draw, a) for a in az]
+    scenes = [placed(a) for a in az]
     descriptors = np.array([box_descriptor(img, box, window) for img, box in scenes])
     directions = np.array([[np.cos(a), np.sin(a), 0.0] for a in az])
-    img, box = _scene(draw, np.radians(62.0))
+    img, box = placed(np.radians(62.0))
     k = jittered_nearest_view(img, box, descriptors, directions, directions[2],
                               window=np.radians(45.0), descriptor_window=window, fraction=0.05)
     assert k == 2
@@ -309,3 +197,4 @@ def test_jittered_nearest_view_agrees_with_the_single_box_on_a_clean_view(draw):
     assert jittered_nearest_view(img, (500.0, 500.0, 20.0, 20.0), descriptors, directions,
                                  directions[2], window=np.radians(45.0),
                                  descriptor_window=window, fraction=0.05) is None
+

@@ -1,3 +1,5 @@
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from scipy.spatial import cKDTree
@@ -5,7 +7,7 @@ from scipy.spatial import cKDTree
 from posevote import PoseEstimator
 from posevote.data import object_box
 from posevote.features import EdgeFeatures
-from posevote.features.edges import normalize_features
+from posevote.features.edges import extract_edges, normalize_features
 from posevote.inference.search import viewpoint_features
 from posevote.model.morph import (
     ViewCrops,
@@ -95,7 +97,8 @@ def test_the_morphed_model_looks_like_the_views_between(draw):
     for between in az + np.radians(20.0):
         view = draw(between)
         box = object_box(view)
-        truth = normalize_features(plain._edges(view, mask=None, max_points=None),
+        edges = replace(plain.edges, max_test_features=None)
+        truth = normalize_features(extract_edges(view, edges, training=False),
                                    center=box[:2] + (box[2:] - 1) / 2, scale=1.0).xy
         d_plain.append(_distance(viewpoint_features(plain.model_, between, 0.0, **kw), truth))
         d_morph.append(_distance(viewpoint_features(morphed.model_, between, 0.0, **kw), truth))
@@ -124,13 +127,18 @@ def test_model_file_refuses_a_shift_of_the_wrong_shape(tmp_path, synthetic_train
     images, az, boxes = synthetic_training
     est = PoseEstimator(morph_views=True).fit(images[::2], az[::2], boxes=boxes[::2])
     bad = replace(est.model_, shift=est.model_.shift[1:])
-    save_model(tmp_path / "bad.npz", bad, est.get_params())
+    from posevote.estimator import params_to_json
+    from posevote.model.training import TrainedModel
+
+    save_model(tmp_path / "bad.npz", TrainedModel(model=bad, full_model=bad,
+                                                  viewpoint_kappa=est.viewpoint_kappa_),
+               params_to_json(est.get_params(deep=False)))
     with pytest.raises(ValueError, match="bad.npz.*inconsistent array shapes"):
         PoseEstimator.load(tmp_path / "bad.npz")
 
 
 def test_a_morphed_model_blends_its_views_wider(synthetic_training):
-    from posevote.estimator import MORPH_BANDWIDTH
+    from posevote.model.density import MORPH_BANDWIDTH
     from posevote.model.kernels import kappa_for_width
 
     images, az, boxes = synthetic_training

@@ -1,6 +1,7 @@
 import numpy as np
 import pytest
 
+from posevote.model.kernels import ORIENTATION_KAPPA
 from posevote.model.pruning import (
     PRESETS,
     PruningPreset,
@@ -33,8 +34,8 @@ def test_prune_merges_repeated_instances_and_keeps_weight(synthetic_training):
                               boxes=np.vstack([boxes, boxes]), instances=["a"] * 18 + ["b"] * 18)
     full = est.full_model_
     pruned = prune_model(full, PruningPreset(pose_std_deg=2.0, appearance_std=0.3),
-                         position_sigma=est.position_sigma,
-                         orientation_kappa=est.orientation_kappa)
+                         position_sigma=est.kernel.position_sigma,
+                         orientation_kappa=ORIENTATION_KAPPA)
     assert pruned.n_features <= 0.55 * full.n_features
     assert pruned.weight.sum() == pytest.approx(full.weight.sum())
     assert pruned.view.max() < full.n_views and np.all(pruned.theta >= 0)

@@ -25,6 +25,15 @@ import numpy as np
 from posevote._io import atomic_write_text, atomic_write_with
 from posevote.evaluation.protocols import Protocol
 
+#: Fields of a record, in CSV column order.
+RECORD_FIELDS = (
+    "row", "split", "image", "instance", "group", "truth_deg", "estimate_deg", "error_deg",
+    "found", "score", "second_deg", "second_score", "inplane_deg", "scale", "u", "v",
+    "box_x", "box_y", "box_w", "box_h", "truth_box_x", "truth_box_y", "truth_box_w",
+    "truth_box_h", "iou", "detected", "seen_instance", "recognised", "instance_margin",
+    "seconds",
+)
+
 
 def _fmt(value: Any, digits: int = 1) -> str:
     if value is None:
@@ -61,7 +70,6 @@ def markdown_table(summary: dict[str, Any]) -> str:
 
 def write_csv(records: Sequence[dict[str, Any]], path: Path) -> None:
     """All records as CSV (atomically)."""
-    from posevote.evaluation.runner import RECORD_FIELDS
 
     buf = io.StringIO()
     writer = csv.DictWriter(buf, fieldnames=list(RECORD_FIELDS), extrasaction="ignore")
@@ -87,7 +95,13 @@ def write_report(protocol: Protocol, summary: dict[str, Any],
         plots = ["error_histogram.png", "per_instance.png", "scatter.png", "worst_cases.png"]
     sub = "" if summary.get("every", 1) == 1 else (
         f"\n**Subsample**: every {summary['every']}th test image of each split.\n")
-    text = (f"# {protocol.name}\n\n{protocol.description}\n{sub}\n{markdown_table(summary)}\n"
+    rows = "\n".join(f"- **{r.name}**: " + (
+        "not available" if r.params is None else
+        ", ".join(f"`{k}={v!r}`" for k, v in r.params.items()) or "the preset as it is")
+        + (f" ({r.note})" if r.note else "") for r in protocol.rows)
+    text = (f"# {protocol.name}\n\n{protocol.description}\n{sub}\n"
+            f"Every row starts from the `{protocol.preset}` preset (posevote.presets, "
+            f"docs/DEFAULTS.md) and changes:\n\n{rows}\n\n{markdown_table(summary)}\n"
             + (f"Published numbers to compare with:\n\n{protocol.published}\n"
                if protocol.published else "")
             + (f"Plots ({main}):\n\n" + "\n".join(f"![{p}]({p})" for p in plots) + "\n"

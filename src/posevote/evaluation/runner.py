@@ -43,16 +43,9 @@ from posevote._io import atomic_write_text
 from posevote.estimator import PoseEstimator
 from posevote.evaluation.metrics import box_iou, summarize_errors
 from posevote.evaluation.protocols import Protocol, Row, Split
+from posevote.evaluation.report import write_report
 from posevote.geometry import angular_error
-
-#: Fields of a record, in CSV column order.
-RECORD_FIELDS = (
-    "row", "split", "image", "instance", "group", "truth_deg", "estimate_deg", "error_deg",
-    "found", "score", "second_deg", "second_score", "inplane_deg", "scale", "u", "v",
-    "box_x", "box_y", "box_w", "box_h", "truth_box_x", "truth_box_y", "truth_box_w",
-    "truth_box_h", "iou", "detected", "seen_instance", "recognised", "instance_margin",
-    "seconds",
-)
+from posevote.model.pruning import resolve_preset
 
 
 def slug(text: str) -> str:
@@ -196,14 +189,14 @@ def _train(protocol: Protocol, row: Row, split: Split, path: Path, records: Path
     A model file whose settings differ from the row's is retrained, and the
     records made with it are discarded.
     """
-    params = {**protocol.base_params, **(row.params or {})}
-    wanted = PoseEstimator(**params).get_params()
+    est = PoseEstimator.from_preset(protocol.preset, **(row.params or {}))
+    wanted = est.get_params(deep=False)
+    pruning = resolve_preset(est.prune)
     if path.is_file():
         try:
             old = PoseEstimator.load(path)
-            preset = PoseEstimator(**params)._pruning()
-            if old.get_params() == wanted and old.pruning_ == (
-                    None if preset is None else vars(preset)):
+            if old.get_params(deep=False) == wanted and old.pruning_ == (
+                    None if pruning is None else vars(pruning)):
                 return _model_facts(old, float("nan"))
         except (OSError, ValueError):
             pass
@@ -211,7 +204,6 @@ def _train(protocol: Protocol, row: Row, split: Split, path: Path, records: Path
             log(f"settings of {row.name!r} on {split.name} changed: its records are redone")
             records.unlink()
     log(f"training {row.name!r} on {split.name} ({len(split.train.images)} images)")
-    est = PoseEstimator(**params)
     start = time.perf_counter()
     ts = split.train
     est.fit(ts.images, ts.poses, boxes=ts.boxes, instances=list(ts.instances) or None,
@@ -231,7 +223,7 @@ def _model_facts(est: PoseEstimator, seconds: float) -> dict[str, Any]:
 def run_protocol(protocol: Protocol, out_dir: str | Path, *, jobs: int = 1, every: int = 1,
                  rows: Sequence[str] | None = None,
                  progress: Callable[[int, int], Any] | None = None,
-                 log: Callable[[str], None] = print) -> dict[str, Any]:
+                 log: Callable[[str], None] | None = None) -> dict[str, Any]:
     """Run (or resume) a protocol and write its results folder.
 
     Parameters
@@ -251,7 +243,7 @@ def run_protocol(protocol: Protocol, out_dir: str | Path, *, jobs: int = 1, ever
     progress : callable, optional
         Called as ``progress(done, total)`` after each test image.
     log : callable, optional
-        Receives one-line messages.
+        Receives one-line messages (the library prints nothing itself).
 
     Returns
     -------
@@ -260,8 +252,7 @@ def run_protocol(protocol: Protocol, out_dir: str | Path, *, jobs: int = 1, ever
         ``wall_seconds_this_run`` (training included) and
         ``wall_seconds_total`` (summed over the runs that built the folder).
     """
-    from posevote.evaluation.report import write_report
-
+    log = log if log is not None else (lambda message: None)
     if jobs < 1 or every < 1:
         raise ValueError(f"jobs and every must be >= 1, got jobs={jobs}, every={every}")
     run_start = time.perf_counter()

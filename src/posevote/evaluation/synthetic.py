@@ -10,7 +10,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import cache
-from typing import Any
 
 import cv2
 import numpy as np
@@ -22,29 +21,6 @@ from posevote.geometry import box_centre
 
 _BACKGROUNDS = ("astronaut", "camera", "coffee", "chelsea", "rocket", "brick", "grass", "gravel",
                 "coins", "moon", "clock", "immunohistochemistry")
-
-
-#: Estimator settings for searching views made by :func:`paste_on_clutter`
-#: (the cluttered COIL benchmark and the demo): the in-plane and scale
-#: ranges the views were made with, kernel in object units with per-scale
-#: chance correction and the search density saturated at 0.5. Chosen on COIL
-#: training views (``benchmarks/coil_instance.py --selftest --clutter`` and
-#: ``--cv --clutter``; docs/TUNING.md):
-#:
-#: - the scoring options by the cluttered CV: median / mean 23.9 / 37.2
-#:   degrees against 28.8 / 48.2 with the paper's density;
-#: - 7 scales (log step 0.10) on the self-test, + local refinement: 5.14 /
-#:   16.12 degrees, 75.0% within 5 px, 12.5% over 30 degrees, against 5.23 /
-#:   18.91, 71.5%, 15.3% with 5, at 1.4 times the time;
-#: - in-plane steps of 5 degrees instead of 10 (the search kernel is widened
-#:   by half a step, so a finer step keeps it narrow) on the self-test, + local
-#:   refinement: 5.45 / 9.32 degrees, 89.2% within 5 px, 4.9% over 30,
-#:   against 5.87 / 16.51, 78.5%, 11.8%; cluttered CV 29.2% over 30 degrees
-#:   against 33.3%; 1.8 times the time. 9 scales on top gained 4 views of
-#:   288 for another 1.3 times the time (not kept).
-CLUTTER_SEARCH: dict[str, Any] = {"inplane_range_deg": (-30.0, 30.0), "inplane_step_deg": 5.0,
-                                  "scale_range": (0.7, 1.3), "scale_steps": 7,
-                                  "object_kernel": True, "chance_correction": True, "density_cap": 0.5}
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)

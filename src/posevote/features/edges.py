@@ -13,12 +13,48 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from posevote._options import Options
 from posevote.data.images import as_gray_float
 from posevote.geometry import rotate_points
 
 # Gradients are scaled to int16 for OpenCV's Canny; 1.0 (a grey-level change
 # of the whole range per pixel) maps to this many units.
 _GRADIENT_UNITS = 4096.0
+
+
+@dataclass(frozen=True, kw_only=True, repr=False)
+class EdgeOptions(Options):
+    """How edge features are extracted from training and test images (Sec. IV).
+
+    Attributes
+    ----------
+    sigma : float, default 1.0
+        Canny smoothing, pixels.
+    thresholds : (float, float), default (0.02, 0.05)
+        Canny hysteresis thresholds, grey levels (full range 1) per pixel;
+        lower them for low-contrast objects.
+    spacing : float, default 2.0
+        Minimum spacing of edge points, pixels.
+    max_train_features : int, default 300
+        Feature budget per training view.
+    max_test_features : int or None, default 2500
+        Feature budget per test image (None: the spacing alone).
+    """
+
+    sigma: float = 1.0
+    thresholds: tuple[float, float] = (0.02, 0.05)
+    spacing: float = 2.0
+    max_train_features: int = 300
+    max_test_features: int | None = 2500
+
+    def __post_init__(self) -> None:
+        self._number("sigma", low=0.0, high=20.0, low_open=True)
+        low, high = self._pair("thresholds")
+        if not 0 < low <= high <= 1:
+            self._fail("thresholds", "(low, high) with 0 < low <= high <= 1", self.thresholds)
+        self._number("spacing", low=0.5, high=50.0)
+        self._number("max_train_features", low=1, high=100_000, integer=True)
+        self._number("max_test_features", low=1, high=1_000_000, integer=True, optional=True)
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -139,6 +175,15 @@ def detect_edges(
     grad_angle = 0.5 * np.arctan2(2.0 * jxy[rows, cols], jxx[rows, cols] - jyy[rows, cols])
     theta = np.mod(grad_angle.astype(np.float64) + np.pi / 2.0, np.pi)
     return EdgeFeatures(xy=xy, theta=theta)
+
+
+def extract_edges(image: NDArray, options: EdgeOptions, *, training: bool,
+                  mask: NDArray[np.bool_] | None = None) -> EdgeFeatures:
+    """:func:`detect_edges` with ``options``, at the training or the test feature budget."""
+    low, high = options.thresholds
+    budget = options.max_train_features if training else options.max_test_features
+    return detect_edges(image, sigma=options.sigma, low_threshold=low, high_threshold=high,
+                        spacing=options.spacing, max_points=budget, mask=mask)
 
 
 def box_mask(shape: tuple[int, int], box: NDArray[np.float64], *, margin: float = 2.0

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.spatial import cKDTree
 
 from posevote.features.edges import EdgeFeatures
 from posevote.geometry import rotate_points
@@ -74,6 +73,9 @@ def explained_fraction(test: EdgeFeatures, model: PoseModel, hypothesis: Hypothe
         + np.asarray(hypothesis.position)
     theta = np.mod(feats.theta + hypothesis.inplane, np.pi)
     strength = feats.weight / feats.weight.max()
+    # imported where used, so that a command-line start does not pay for it
+    from scipy.spatial import cKDTree
+
     tree = cKDTree(xy)
     # Spacing of the model's points along its contours, in image pixels: a
     # test point on a contour then sums to about sqrt(2 pi) sigma / spacing.

@@ -17,10 +17,190 @@ from functools import cached_property
 import numpy as np
 from numpy.typing import NDArray
 
+from posevote._options import Options
+from posevote.features.edges import EdgeFeatures
 from posevote.geometry import viewing_direction
-from posevote.inference.voting import TestMaps, search_translations
+from posevote.inference.voting import TestMaps, prepare_test, scaled_features, search_translations
 from posevote.model.density import PoseModel, viewpoint_weights
+from posevote.model.kernels import K1_CUTOFF, ORIENTATION_KAPPA
 from posevote.model.morph import morphed_positions
+from posevote.results import Hypothesis
+
+#: Training features that vote per probe (an even subset; all count in the
+#: exact score): the vote only has to find the peak's neighbourhood.
+MAX_VOTERS = 200
+#: Vote peaks per probe whose exact score is computed; the best is polished.
+VOTE_CANDIDATES = 2
+#: The most probes (viewpoints x in-plane angles x scales) one search may
+#: hold, and the most in-plane angles or scales: a grid past these is refused
+#: before anything is allocated.
+MAX_PROBES = 2_000_000
+MAX_GRID_STEPS = 400
+
+
+@dataclass(frozen=True, kw_only=True, repr=False)
+class SearchOptions(Options):
+    """The grid of Fig. 2 and how each probe is scored.
+
+    Attributes
+    ----------
+    viewpoint_step_deg : float or None, default None
+        Probe turntable models on a regular azimuth grid of this step
+        instead of at the training viewpoints (dense or pooled training
+        sets; :func:`viewpoint_grid`).
+    viewpoint_subdivisions : int, default 1
+        Probes per training-viewpoint gap: 1 probes the training viewpoints.
+    inplane_range_deg : (float, float), default (0, 0)
+        In-plane angles searched, degrees.
+    inplane_step_deg : float, default 10.0
+        Step of the in-plane search, degrees.
+    scale_range : (float, float), default (0.9, 1.1)
+        Scales searched, relative to the training images.
+    scale_steps : int, default 3
+        Scales searched (log-spaced). Keep the log-scale step near the
+        in-plane step in radians when widening the range.
+    object_kernel : bool, default False
+        Fix the position kernel in object units: the test features are
+        divided by each searched scale and searched at scale 1, so that
+        small scales are not favoured by a relatively wider tolerance
+        (beyond the paper).
+    chance_correction : bool, default False
+        With ``object_kernel``, score each scale by the fraction explained
+        above its chance level (:func:`probe_poses`).
+    density_cap : float or None, default None
+        Saturate the search's test density at this value (a model feature
+        is explained or not, however dense the edges around it); None: the
+        paper's unbounded density.
+    max_search_features : int or None, default None
+        At most about this many training features per viewpoint take part in
+        the grid search (an even subset), for pooled category models; the
+        refinements read all of them.
+    """
+
+    viewpoint_step_deg: float | None = None
+    viewpoint_subdivisions: int = 1
+    inplane_range_deg: tuple[float, float] = (0.0, 0.0)
+    inplane_step_deg: float = 10.0
+    scale_range: tuple[float, float] = (0.9, 1.1)
+    scale_steps: int = 3
+    object_kernel: bool = False
+    chance_correction: bool = False
+    density_cap: float | None = None
+    max_search_features: int | None = None
+
+    def __post_init__(self) -> None:
+        self._number("viewpoint_step_deg", low=0.1, high=180.0, optional=True)
+        self._number("viewpoint_subdivisions", low=1, high=16, integer=True)
+        low, high = self._pair("inplane_range_deg")
+        if high - low >= 360:
+            self._fail("inplane_range_deg", "a span under 360 degrees", self.inplane_range_deg)
+        self._number("inplane_step_deg", low=0.1, high=180.0)
+        low, high = self._pair("scale_range")
+        if not 0.01 <= low <= high <= 100:
+            self._fail("scale_range", "(low, high) with 0.01 <= low <= high <= 100",
+                       self.scale_range)
+        self._number("scale_steps", low=1, high=MAX_GRID_STEPS, integer=True)
+        for name in ("object_kernel", "chance_correction"):
+            self._flag(name)
+        self._number("density_cap", low=0.0, high=1e6, low_open=True, optional=True)
+        self._number("max_search_features", low=1, high=10_000_000, integer=True,
+                     optional=True)
+        n_inplane = len(self.grid()[0])
+        if n_inplane > MAX_GRID_STEPS:
+            self._fail("inplane_step_deg", f"a step giving at most {MAX_GRID_STEPS} in-plane "
+                       f"angles over inplane_range_deg (this gives {n_inplane})",
+                       self.inplane_step_deg)
+
+    def grid(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """The in-plane angles (radians, centred on the range) and scales searched."""
+        a_lo, a_hi = np.radians(self.inplane_range_deg)
+        step = np.radians(self.inplane_step_deg)
+        n_a = int(np.floor((a_hi - a_lo) / step + 1e-9)) + 1
+        inplanes = (a_lo + a_hi) / 2.0 + (np.arange(n_a) - (n_a - 1) / 2.0) * step
+        lo, hi = self.scale_range
+        scales = np.geomspace(lo, hi, self.scale_steps) if self.scale_steps > 1 \
+            else np.array([np.sqrt(lo * hi)])
+        return inplanes, scales
+
+    def scale_step(self) -> float:
+        """The grid's log-scale step (0 for one scale)."""
+        scales = self.grid()[1]
+        return float(np.median(np.diff(np.log(scales)))) if len(scales) > 1 else 0.0
+
+
+@dataclass(frozen=True, kw_only=True)
+class SearchSetup:
+    """Everything a search of one fitted model needs besides the image.
+
+    Attributes
+    ----------
+    options : SearchOptions
+    position_sigma : float
+        The narrow (refinement) position kernel, pixels at scale 1.
+    edge_spacing : float
+        Spacing of the test edge points, pixels (normalises phi).
+    viewpoint_kappa : float
+        Concentration of the pose kernel K1.
+    use_weights : bool
+        Use the features' weights (Eq. 4).
+    n_threads : int
+        Viewpoints probed at once.
+    """
+
+    options: SearchOptions
+    position_sigma: float
+    edge_spacing: float
+    viewpoint_kappa: float
+    use_weights: bool = True
+    n_threads: int = 1
+
+
+def search_sigma(model: PoseModel, setup: SearchSetup) -> float:
+    """Position kernel width used while searching, pixels.
+
+    A probe lies up to half a grid step from the true in-plane angle and
+    scale; a feature at radius ``r`` is then displaced by about
+    ``r * step / 2``. The kernel is widened by that amount (in quadrature)
+    so that the probe nearest the truth keeps its score, instead of losing
+    it to clutter between grid steps.
+    """
+    inplanes, scales = setup.options.grid()
+    r = float(np.sqrt(np.mean(np.sum(model.xy**2, axis=1)))) * float(np.max(scales))
+    d_alpha = float(np.median(np.diff(inplanes))) if len(inplanes) > 1 else 0.0
+    d_log_s = float(np.median(np.diff(np.log(scales)))) if len(scales) > 1 else 0.0
+    return float(np.sqrt(setup.position_sigma**2 + (r * d_alpha / 2.0) ** 2
+                         + (r * d_log_s / 2.0) ** 2))
+
+
+def image_maps(features: EdgeFeatures, shape: tuple[int, int], setup: SearchSetup, *,
+              sigma: float | None = None, scale: float = 1.0, search: bool = False) -> TestMaps:
+    """The test image tabulated at kernel width ``sigma`` (default: the narrow one).
+
+    ``density_cap`` applies to the search's maps only: the narrow maps of
+    the refinements keep the unsaturated density, whose ridges give the
+    precise alignment.
+    """
+    return prepare_test(features, shape,
+                        position_sigma=setup.position_sigma if sigma is None else sigma,
+                        orientation_kappa=ORIENTATION_KAPPA,
+                        edge_spacing=setup.edge_spacing / scale,
+                        density_cap=setup.options.density_cap if search else None)
+
+
+def scale_maps(features: EdgeFeatures, shape: tuple[int, int], setup: SearchSetup, *,
+               sigma: float | None = None, search: bool = False) -> list[TestMaps]:
+    """One set of maps per searched scale, the features divided by it (object units)."""
+    return [image_maps(*scaled_features(features, shape, float(s)), setup, sigma=sigma,
+                      scale=float(s), search=search) for s in setup.options.grid()[1]]
+
+
+def search_maps(features: EdgeFeatures, shape: tuple[int, int], model: PoseModel,
+                setup: SearchSetup) -> TestMaps | list[TestMaps]:
+    """The maps the search runs on: one set, or one per scale (``object_kernel``)."""
+    sigma = search_sigma(model, setup)
+    if not setup.options.object_kernel:
+        return image_maps(features, shape, setup, sigma=sigma, search=True)
+    return scale_maps(features, shape, setup, sigma=sigma, search=True)
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -66,6 +246,16 @@ class ProbeSet:
     def turntable(self) -> bool:
         """True when every probe has the same elevation (only azimuth varies)."""
         return bool(np.ptp(self.elevation) < 1e-9) if len(self.elevation) else True
+
+
+def probe_spacing(probes: ProbeSet) -> float:
+    """Median angle between a probed viewpoint and its nearest neighbour."""
+    d = probes.directions
+    if len(d) < 2:
+        return np.pi
+    cosines = np.clip(d @ d.T, -1.0, 1.0)
+    np.fill_diagonal(cosines, -1.0)
+    return float(np.median(np.arccos(cosines.max(axis=1))))
 
 
 def viewpoint_grid(model: PoseModel, *, subdivisions: int = 1, step: float | None = None
@@ -271,3 +461,52 @@ def probe_poses(
                     elevation=np.asarray(elevations, dtype=float),
                     inplane=np.asarray(inplanes, dtype=float), scale=np.asarray(scales, dtype=float),
                     score=score, translation=translation, box=box)
+
+
+def probe(model: PoseModel, maps: TestMaps | list[TestMaps], setup: SearchSetup, *,
+          near: Hypothesis | None = None, size: float = 1.0,
+          progress: Callable[[int], None] | None = None) -> ProbeSet:
+    """Probe p(w) on the grid of ``setup`` (Fig. 2).
+
+    Parameters
+    ----------
+    model : PoseModel
+    maps : TestMaps or list of TestMaps
+        From :func:`search_maps` (or restricted to a window).
+    setup : SearchSetup
+    near : Hypothesis, optional
+        Probe only the viewpoints within three grid steps of it.
+    size : float, optional
+        Multiplies the scale grid (an instance's training size); per-scale
+        maps fix the grid, and then it is ignored.
+    progress : callable, optional
+        Called with 1 after each viewpoint.
+
+    Returns
+    -------
+    ProbeSet
+    """
+    opts = setup.options
+    step = None if opts.viewpoint_step_deg is None else np.radians(opts.viewpoint_step_deg)
+    az, el = viewpoint_grid(model, subdivisions=opts.viewpoint_subdivisions, step=step)
+    if near is not None and len(az) > 3:
+        dirs = viewing_direction(az, el)
+        cosines = dirs @ viewing_direction(near.azimuth, near.elevation)
+        gap = float(np.median(np.diff(np.sort(az)))) if np.ptp(el) < 1e-9 else np.radians(20)
+        keep = cosines >= np.cos(3.0 * gap)
+        if keep.sum() < 3:
+            keep = np.isin(np.arange(len(az)), np.argsort(-cosines)[:3])
+        az, el = az[keep], el[keep]
+    inplanes, scales = opts.grid()
+    if len(az) * len(inplanes) * len(scales) > MAX_PROBES:
+        raise ValueError(f"the search grid has {len(az)} viewpoints x {len(inplanes)} in-plane "
+                         f"angles x {len(scales)} scales, over the limit of {MAX_PROBES} "
+                         "probes; use a coarser SearchOptions grid")
+    if isinstance(maps, TestMaps):
+        scales = scales * size
+    return probe_poses(model, maps, azimuths=az, elevations=el, inplanes=inplanes,
+                       scales=scales, viewpoint_kappa=setup.viewpoint_kappa,
+                       use_weights=setup.use_weights, k1_cutoff=K1_CUTOFF,
+                       max_voters=MAX_VOTERS, max_features=opts.max_search_features,
+                       n_candidates=VOTE_CANDIDATES, chance_correction=opts.chance_correction,
+                       progress=progress, n_threads=setup.n_threads)

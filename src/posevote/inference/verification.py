@@ -1,145 +1,38 @@
-"""Appearance verification of search candidates (beyond the paper).
+"""Appearance verification of search candidates, and the nearest training view (beyond the paper).
 
-The voting search of Fig. 2 ranks (viewpoint, in-plane angle, scale,
-translation) probes by how many model edges the image explains there. In a
-full cluttered frame the best-scoring probe is often a part of the object
-at too small a scale, or clutter, while a probe a little lower in the
-ranking has the right box. Verification looks at the image *inside* each of
-the best candidates' boxes: a histogram-of-oriented-gradients descriptor
-(:func:`skimage.feature.hog`) of the crop, resized to a fixed window, is
-compared with the descriptors of the training views near the candidate's
-viewpoint, and the candidate whose crop is nearest to one of them wins.
-Unlike the edge votes, the descriptor also sees where edges are *missing*
-and the shading inside the box, which tells a car's front from its back.
-
-Nearness to a training view is judged among the candidates that look most
-like the object at all: a linear classifier of the descriptors (scikit-learn's
-:class:`~sklearn.svm.LinearSVC`), trained on the training boxes against
-boxes of the training images that miss the object (:func:`background_boxes`,
-:func:`train_objectness`), short-lists them first. Without the short list
-the nearest descriptor often belonged to a part of the object or to a patch
-of background that happens to resemble some view.
-
-Training views store their descriptor and the classifier; the test side is
-:func:`verify_candidates`. The estimator then re-estimates inside the
-winning box (``PoseEstimator(verify_candidates=N)``).
+The voting search of Fig. 2 ranks probes by how many model edges the image
+explains there. In a full cluttered frame the best-scoring probe is often a
+part of the object at too small a scale, or clutter, while a probe a little
+lower in the ranking has the right box. Verification looks at the image
+*inside* each of the best candidates' boxes: each box is moved toward the
+object by the box regression, its descriptor
+(:mod:`posevote.features.appearance`) compared with those of the training
+views near the candidate's viewpoint, among the candidates that the
+objectness classifier finds most object-like, and the candidate nearest to
+a training view wins (:func:`verify_candidates`). :func:`verify` then
+searches again inside the winner's box.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 
-import cv2
 import numpy as np
 from numpy.typing import NDArray
-from skimage.feature import hog
-from sklearn.linear_model import Ridge
-from sklearn.svm import LinearSVC
 
-from posevote.geometry import box_iou, viewing_direction
-from posevote.inference.search import ProbeSet
+from posevote.features.appearance import box_descriptor
+from posevote.features.edges import EdgeFeatures
+from posevote.geometry import box_centre, viewing_direction
+from posevote.inference.search import ProbeSet, SearchSetup, probe, probe_spacing
+from posevote.inference.voting import TestMaps, restrict_maps
+from posevote.model.appearance import REGRESSION_STEPS, AppearanceModel, AppearanceOptions, shift_box
+from posevote.model.density import PoseModel
+from posevote.results import Hypothesis
 
-#: Height of the descriptor window, pixels; its width follows the training boxes' shape.
-WINDOW_HEIGHT = 48
-_CELL = 8
-
-
-def window_shape(box_sizes: NDArray[np.float64]) -> tuple[int, int]:
-    """Descriptor window ``(height, width)`` for training boxes ``(w, h)`` (median aspect).
-
-    The height is :data:`WINDOW_HEIGHT`; the width is the median box aspect
-    times that, rounded to whole 8-pixel cells and kept within 3-18 cells.
-    """
-    aspect = float(np.median(box_sizes[:, 0] / box_sizes[:, 1])) if len(box_sizes) else 1.0
-    cells = int(np.clip(round(WINDOW_HEIGHT * aspect / _CELL), 3, 18))
-    return WINDOW_HEIGHT, cells * _CELL
-
-
-def crop_box(image: NDArray[np.floating], box: Sequence[float]) -> NDArray[np.floating]:
-    """The pixels of ``image`` in ``box`` ``(x, y, w, h)`` (rounded; cut off at the borders)."""
-    x, y, w, h = (float(b) for b in box)
-    x0, y0 = max(int(round(x)), 0), max(int(round(y)), 0)
-    x1, y1 = min(int(round(x + w)), image.shape[1]), min(int(round(y + h)), image.shape[0])
-    return image[y0:max(y1, y0), x0:max(x1, x0)]
-
-
-def box_descriptor(image: NDArray[np.floating], box: Sequence[float],
-                   window: tuple[int, int]) -> NDArray[np.float32] | None:
-    """HOG descriptor of the crop of ``image`` in ``box`` resized to ``window``.
-
-    Parameters
-    ----------
-    image : ndarray, shape (H, W)
-        Grey image.
-    box : (x, y, w, h)
-        Box in pixels; the part outside the image is cut off.
-    window : (height, width)
-        Window the crop is resized to (:func:`window_shape`).
-
-    Returns
-    -------
-    ndarray of float32, or None
-        None when less than 8x8 pixels of the box are in the image.
-    """
-    region = crop_box(image, box)
-    if region.shape[0] < 8 or region.shape[1] < 8:
-        return None
-    crop = cv2.resize(np.ascontiguousarray(region, dtype=np.float32),
-                      (window[1], window[0]), interpolation=cv2.INTER_AREA)
-    return hog(crop, orientations=9, pixels_per_cell=(_CELL, _CELL), cells_per_block=(2, 2),
-               feature_vector=True).astype(np.float32)
-
-
-def descriptor_length(window: tuple[int, int]) -> int:
-    """Length of a :func:`box_descriptor` for ``window``."""
-    blocks_y, blocks_x = window[0] // _CELL - 1, window[1] // _CELL - 1
-    return blocks_y * blocks_x * 4 * 9
-
-
-def background_boxes(shape: tuple[int, int], box: Sequence[float], rng: np.random.Generator,
-                     *, attempts: int = 5, max_overlap: float = 0.4) -> list[tuple[float, ...]]:
-    """Random boxes of an image that miss its object (negatives for :func:`train_objectness`).
-
-    Each attempt draws a box of 0.4 to 1.2 times the object box's size (its
-    aspect changed by up to a factor 1.35 either way) anywhere in the image,
-    and keeps it if its intersection over union with the object box is below
-    ``max_overlap``: parts of the object count as background.
-    """
-    h_img, w_img = shape
-    x0, y0, w0, h0 = (float(b) for b in box)
-    out: list[tuple[float, ...]] = []
-    for _ in range(attempts):
-        size = np.exp(rng.uniform(np.log(0.4), np.log(1.2)))
-        w = min(w0 * size * np.exp(rng.uniform(-0.3, 0.3)), 0.95 * w_img)
-        h = min(h0 * size, 0.95 * h_img)
-        x = rng.uniform(-0.05 * w, w_img - 0.95 * w)
-        y = rng.uniform(-0.05 * h, h_img - 0.95 * h)
-        if box_iou((x, y, w, h), (x0, y0, w0, h0)) < max_overlap:
-            out.append((x, y, w, h))
-    return out
-
-
-def train_objectness(positives: NDArray[np.float32], negatives: NDArray[np.float32]
-                     ) -> NDArray[np.float64] | None:
-    """Linear classifier of descriptors, object against background.
-
-    Parameters
-    ----------
-    positives, negatives : ndarray, shape (n, D)
-        Descriptors of object boxes and of background boxes.
-
-    Returns
-    -------
-    ndarray, shape (D + 1,), or None
-        Weights and bias (score ``d @ w[:-1] + w[-1]``, positive for the
-        object); None with fewer than 10 negatives or 2 positives.
-    """
-    if len(negatives) < 10 or len(positives) < 2:
-        return None
-    x = np.vstack([positives, negatives])
-    y = np.r_[np.ones(len(positives)), np.zeros(len(negatives))]
-    clf = LinearSVC(C=0.01, class_weight="balanced", random_state=0).fit(x, y)
-    return np.r_[clf.coef_[0], clf.intercept_[0]].astype(np.float64)
+#: The search again inside the verified box keeps the test edges within the
+#: box grown by this fraction of its size on every side: the regressed box
+#: can be a little small, and the edges of the object's outline must stay.
+VERIFY_MARGIN = 0.25
 
 
 def verify_candidates(probes: ProbeSet, image: NDArray[np.float64],
@@ -229,98 +122,6 @@ def verify_candidates(probes: ProbeSet, image: NDArray[np.float64],
         if best is None or dist < best[1]:
             best = (index, dist, box)
     return best
-
-
-# -- box regression and the pose of the regressed box (appearance_refine) -------------
-
-#: Jittered boxes per training image for the box regression, and their spread:
-#: centre shifts up to this fraction of the box size, log-size changes up to
-#: this much, log-aspect changes up to half of it.
-JITTER_PER_IMAGE = 8
-JITTER = 0.15
-#: Azimuth ranges with a regression of their own (each fitted on the training
-#: views within one range width of its centre), and the ridge penalty. Chosen
-#: on epfl-cv (every 8th test frame; benchmarks/epfl_box_regression.py,
-#: docs/TUNING.md): one regression for all views 8.34, four 8.81, eight 7.84
-#: degrees median error after the pose step; penalty 10 / 100 / 1000 left
-#: the median IoU at 0.76 / 0.78 / 0.75 (one regression, every second frame).
-REGRESSION_BINS = 8
-REGRESSION_ALPHA = 100.0
-#: Times the regression is applied to a box (median IoU 0.70, 0.74, 0.76, 0.76
-#: after 0 to 3 steps on the same frames).
-REGRESSION_STEPS = 3
-_MIN_BIN_SAMPLES = 20
-
-
-def jittered_boxes(box: Sequence[float], rng: np.random.Generator, *,
-                   n: int = JITTER_PER_IMAGE, jitter: float = JITTER
-                   ) -> list[tuple[float, float, float, float]]:
-    """Boxes moved and resized at random around ``box`` (training samples of the regression)."""
-    x, y, w, h = (float(b) for b in box)
-    out = []
-    for _ in range(n):
-        size = np.exp(rng.uniform(-jitter, jitter))
-        aspect = np.exp(rng.uniform(-jitter, jitter) / 2.0)
-        nw, nh = w * size * aspect, h * size / aspect
-        cx = x + w / 2.0 + rng.uniform(-jitter, jitter) * w
-        cy = y + h / 2.0 + rng.uniform(-jitter, jitter) * h
-        out.append((cx - nw / 2.0, cy - nh / 2.0, nw, nh))
-    return out
-
-
-def box_offsets(box: Sequence[float], target: Sequence[float]) -> NDArray[np.float64]:
-    """From ``box`` to ``target``: centre shift in box widths and heights, log-size ratios."""
-    x, y, w, h = (float(b) for b in box)
-    tx, ty, tw, th = (float(b) for b in target)
-    return np.array([(tx + tw / 2.0 - x - w / 2.0) / w, (ty + th / 2.0 - y - h / 2.0) / h,
-                     np.log(tw / w), np.log(th / h)])
-
-
-def shift_box(box: Sequence[float], offsets: NDArray[np.float64]
-              ) -> tuple[float, float, float, float]:
-    """``box`` moved by :func:`box_offsets` (the inverse of that function)."""
-    x, y, w, h = (float(b) for b in box)
-    nw, nh = w * float(np.exp(offsets[2])), h * float(np.exp(offsets[3]))
-    cx, cy = x + w / 2.0 + float(offsets[0]) * w, y + h / 2.0 + float(offsets[1]) * h
-    return cx - nw / 2.0, cy - nh / 2.0, nw, nh
-
-
-def train_box_regression(descriptors: NDArray[np.float32], offsets: NDArray[np.float64],
-                         azimuths: NDArray[np.float64], *, bins: int = REGRESSION_BINS,
-                         alpha: float = REGRESSION_ALPHA) -> NDArray[np.float64]:
-    """Ridge regressions from a box's descriptor to the offsets back to the object's box.
-
-    Parameters
-    ----------
-    descriptors : ndarray, shape (n, D)
-        Descriptors (:func:`box_descriptor`) of boxes jittered around the
-        training boxes (:func:`jittered_boxes`).
-    offsets : ndarray, shape (n, 4)
-        :func:`box_offsets` from each jittered box to its training box.
-    azimuths : ndarray, shape (n,)
-        Azimuth of each sample's training view, radians.
-    bins : int, optional
-        Azimuth ranges, each with its own regression, fitted on the samples
-        within one range width of its centre (all of them when fewer than
-        20 are there).
-    alpha : float, optional
-        Ridge penalty (:class:`sklearn.linear_model.Ridge`).
-
-    Returns
-    -------
-    ndarray, shape (bins, 4, D + 1)
-        Per range, weights and intercept of each offset.
-    """
-    width = 2.0 * np.pi / bins
-    out = np.zeros((bins, 4, descriptors.shape[1] + 1))
-    for k in range(bins):
-        near = np.abs(np.angle(np.exp(1j * (azimuths - (k + 0.5) * width)))) <= width + 1e-9
-        if near.sum() < _MIN_BIN_SAMPLES:
-            near = np.ones(len(azimuths), dtype=bool)
-        reg = Ridge(alpha=alpha).fit(descriptors[near], offsets[near])
-        out[k, :, :-1] = reg.coef_
-        out[k, :, -1] = reg.intercept_
-    return out
 
 
 def regress_box(image: NDArray[np.floating], box: Sequence[float], regressor: NDArray[np.float64],
@@ -451,3 +252,70 @@ def jittered_nearest_view(image: NDArray[np.floating], box: Sequence[float],
     ref = descriptors[near]
     sq = np.einsum("ij,ij->i", ref, ref)[None, :] - 2.0 * (found @ ref.T)
     return medoid_view(near[np.argmin(sq, axis=1)].tolist(), view_directions)
+
+
+def verify(probes: ProbeSet, image: NDArray[np.float64], features: EdgeFeatures,
+           maps: TestMaps | list[TestMaps], model: PoseModel, appearance: AppearanceModel,
+           options: AppearanceOptions, setup: SearchSetup
+           ) -> tuple[EdgeFeatures, TestMaps | list[TestMaps], ProbeSet,
+                      tuple[float, float, float, float]] | None:
+    """Verify the best probes by appearance and search again in the winner's box.
+
+    Parameters
+    ----------
+    probes : ProbeSet
+        The first search's probes.
+    image : ndarray, shape (H, W)
+        The grey test image.
+    features : EdgeFeatures
+        Its edge features.
+    maps : TestMaps or list of TestMaps
+        The search maps the probes came from.
+    model : PoseModel
+        The searched model.
+    appearance : AppearanceModel
+        The training views' descriptors, classifier and box regressions.
+    options : AppearanceOptions
+    setup : SearchSetup
+
+    Returns
+    -------
+    (features, maps, probes, box) or None
+        The test features inside the winner's box (grown by
+        :data:`VERIFY_MARGIN`), the maps restricted to it, the probes of the
+        search again near the winner's viewpoint, and the winner's regressed
+        box; None when no candidate could be verified.
+    """
+    if appearance.regressor is None:
+        raise ValueError("the appearance verification needs the box regression, which this "
+                         "model lacks; retrain it")
+    found = verify_candidates(probes, image, appearance.descriptors, model.view_azimuth,
+                              model.view_elevation, window=appearance.window,
+                              n_candidates=options.candidates,
+                              tolerance=probe_spacing(probes) if options.tolerance_deg is None
+                              else np.radians(options.tolerance_deg),
+                              objectness=appearance.objectness, shortlist=options.shortlist,
+                              regressor=appearance.regressor,
+                              objectness_weight=options.objectness_weight)
+    if found is None:
+        return None
+    (v, a, s), _, box = found
+    # The winner was judged on its regressed box: search again inside that.
+    size = np.array(box[2:])
+    centre = np.asarray(box_centre(box), dtype=np.float64)
+    half = size * (0.5 + VERIFY_MARGIN)
+    keep = np.all(np.abs(features.xy - centre) <= half, axis=1)
+    if not keep.any():
+        return None
+    if isinstance(maps, TestMaps):
+        inside: TestMaps | list[TestMaps] = restrict_maps(maps, centre - half, centre + half)
+    else:
+        inside = [restrict_maps(m, (centre - half) / f, (centre + half) / f)
+                  for m, f in zip(maps, probes.scale, strict=True)]
+    x, y, w, h = box
+    near = Hypothesis(azimuth=float(probes.azimuth[v]), elevation=float(probes.elevation[v]),
+                      inplane=float(probes.inplane[a]), scale=float(probes.scale[s]),
+                      position=(float(centre[0]), float(centre[1])), box=(x, y, w, h),
+                      score=float(probes.score[v, a, s]), refined=False)
+    again = probe(model, inside, setup, near=near)
+    return features.select(keep), inside, again, (x, y, w, h)

@@ -39,8 +39,8 @@ class TestMaps:
     xy, theta : ndarray
         Test features sorted by orientation bin.
     weight : ndarray
-        Weight of each test feature: its local orientation coherence (see
-        :func:`orientation_coherence`), or 1.
+        Weight of each test feature (1 for every edge point; the voting
+        kernels take a weight per feature).
     bin_start : ndarray of int, shape (n_vote_bins + 1,)
         Start of each orientation bin in the sorted arrays.
     density : ndarray, shape (n_density_bins, H, W), float32
@@ -74,56 +74,9 @@ class TestMaps:
         return int(self.density.shape[1]), int(self.density.shape[2])
 
 
-def edge_statistics(features: EdgeFeatures, shape: tuple[int, int], *, sigma: float,
-                    spacing: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Local orientation coherence and crowding of each edge point.
-
-    Parameters
-    ----------
-    features : EdgeFeatures
-        Edge points.
-    shape : (int, int)
-        Image shape.
-    sigma : float
-        Width (pixels) of the Gaussian neighbourhood.
-    spacing : float
-        Spacing of the points along edges, pixels.
-
-    Returns
-    -------
-    coherence : ndarray
-        ``|sum_j g_j exp(2i theta_j)| / sum_j g_j`` over the nearby points, in
-        ``[0, 1]``: 1 on a straight contour, near 0 in texture whose edges
-        point every way (grass, gravel, foliage).
-    crowding : ndarray
-        Local density of edge points relative to an isolated straight edge
-        sampled at ``spacing`` (about 1 on a lone contour, much more in
-        texture).
-    """
-    h, w = shape
-    if len(features) == 0:
-        return np.zeros(0), np.zeros(0)
-    cols = np.clip(np.rint(features.xy[:, 0]).astype(np.int64), 0, w - 1)
-    rows = np.clip(np.rint(features.xy[:, 1]).astype(np.int64), 0, h - 1)
-    planes = np.zeros((3, h, w))
-    np.add.at(planes[0], (rows, cols), np.cos(2 * features.theta))
-    np.add.at(planes[1], (rows, cols), np.sin(2 * features.theta))
-    np.add.at(planes[2], (rows, cols), 1.0)
-    c, s, n = (cv2.GaussianBlur(p, (0, 0), sigma, borderType=cv2.BORDER_CONSTANT)[rows, cols]
-               for p in planes)
-    coherence = np.clip(np.hypot(c, s) / np.maximum(n, 1e-12), 0.0, 1.0)
-    # A unit-sum Gaussian summed along a straight line of points `spacing`
-    # apart gives 1 / (sqrt(2 pi) sigma spacing) on the line.
-    crowding = n * np.sqrt(2.0 * np.pi) * sigma * spacing
-    return coherence, crowding
-
-
 def prepare_test(features: EdgeFeatures, shape: tuple[int, int], *, position_sigma: float,
                  orientation_kappa: float, edge_spacing: float = 2.0,
-                 clutter_sigma: float | None = None, coherence_floor: float = 0.3,
-                 crowding_limit: float = 1.0, density_cap: float | None = None,
-                 contrast: float = 0.0,
-                 vote_bins: int = 16, density_bins: int = 16,
+                 density_cap: float | None = None, vote_bins: int = 16, density_bins: int = 16,
                  vote_cutoff: float = 0.2) -> TestMaps:
     """Sort the test features by orientation and tabulate phi (Eq. 2).
 
@@ -139,28 +92,11 @@ def prepare_test(features: EdgeFeatures, shape: tuple[int, int], *, position_sig
         Spacing of the test features along edges, pixels. The density is
         divided by that of an isolated straight edge, so that a model
         feature lying on a contour of the image scores about 1.
-    clutter_sigma : float, optional
-        If given, each test feature is weighted by its local orientation
-        coherence at this scale (pixels), rescaled so that
-        ``coherence_floor`` maps to 0, and divided by its local crowding
-        (:func:`edge_statistics`): contours keep weight 1, isotropic or dense
-        texture gets little. An extension beyond the paper, for clutter.
-        Features weighted 0.05 or less are dropped.
-    coherence_floor : float, optional
-        Coherence at and below which a test feature is ignored.
-    crowding_limit : float, optional
-        Crowding (relative to a lone contour) up to which a test feature keeps
-        its full weight; above it the weight falls as ``limit / crowding``.
     density_cap : float, optional
         If given, phi is saturated at this value: a model feature is
         explained by an image edge or not, however dense the edges around
         it (beyond the paper; keeps textured clutter from outvoting
         contours and biasing the scale towards small, dense fits).
-    contrast : float, optional
-        Subtract this fraction of the orientation-averaged density from
-        each orientation's density (clipped at 0), so that isotropic
-        texture, which matches every orientation equally, explains nothing,
-        while a contour keeps most of its density (beyond the paper).
     vote_bins : int, optional
         Orientation bins used to find compatible pairs when voting.
     density_bins : int, optional
@@ -174,15 +110,7 @@ def prepare_test(features: EdgeFeatures, shape: tuple[int, int], *, position_sig
     TestMaps
     """
     h, w = shape
-    if clutter_sigma is not None:
-        coherence, crowding = edge_statistics(features, shape, sigma=clutter_sigma,
-                                              spacing=edge_spacing)
-        weight = np.clip((coherence - coherence_floor) / (1.0 - coherence_floor), 0.0, 1.0)
-        weight *= crowding_limit / np.maximum(crowding, crowding_limit)
-        keep = weight > 0.05
-        features, weight = features.select(keep), weight[keep]
-    else:
-        weight = np.ones(len(features))
+    weight = np.ones(len(features))
     bins = np.minimum((features.theta / np.pi * vote_bins).astype(np.int64), vote_bins - 1)
     order = np.argsort(bins, kind="stable")
     bin_start = np.searchsorted(bins[order], np.arange(vote_bins + 1)).astype(np.int64)
@@ -204,9 +132,6 @@ def prepare_test(features: EdgeFeatures, shape: tuple[int, int], *, position_sig
                                         ).astype(np.float32))
         density[b] = np.float32(gain) * cv2.GaussianBlur(plane, (0, 0), position_sigma,
                                                          borderType=cv2.BORDER_CONSTANT)
-    if contrast > 0:
-        density -= np.float32(contrast) * density.mean(axis=0, keepdims=True)
-        np.maximum(density, 0.0, out=density)
     if density_cap is not None:
         np.minimum(density, np.float32(density_cap), out=density)
     lut = orientation_kernel(np.linspace(0.0, np.pi / 2, _LUT_SIZE), orientation_kappa)

@@ -16,7 +16,19 @@ from numpy.typing import ArrayLike, NDArray
 
 from posevote.features.edges import EdgeFeatures, normalize_features
 from posevote.geometry import rotate_points, viewing_direction
-from posevote.model.kernels import orientation_kernel, position_kernel, viewpoint_kernel
+from posevote.model.kernels import (
+    kappa_for_width,
+    orientation_kernel,
+    position_kernel,
+    viewpoint_kernel,
+)
+
+#: Half width at half maximum of K1, in training-view spacings, for morphed
+#: models without a bandwidth of their own (0.5 otherwise): morphed features
+#: move with the object, so a wider kernel blends neighbours without blurring
+#: them. Chosen on the rendered turntables at the COIL protocol's offsets
+#: (``benchmarks/tune_rendered.py``; docs/DEFAULTS.md).
+MORPH_BANDWIDTH = 0.75
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -209,6 +221,19 @@ def build_model(
         category=category,
         instance_size=tuple(float(f) for f in instance_size),
     )
+
+
+def viewpoint_kappa(model: PoseModel, bandwidth_deg: float | None = None) -> float:
+    """Concentration of K1: from ``bandwidth_deg`` (HWHM), else from the views' spacing."""
+    if bandwidth_deg is not None:
+        return kappa_for_width(np.radians(bandwidth_deg))
+    d = np.unique(np.round(model.view_directions(), 9), axis=0)
+    if len(d) < 2:
+        return kappa_for_width(np.radians(10.0))
+    cosines = np.clip(d @ d.T, -1.0, 1.0)
+    np.fill_diagonal(cosines, -1.0)
+    spacing = float(np.median(np.arccos(cosines.max(axis=1))))
+    return kappa_for_width(spacing * (MORPH_BANDWIDTH if model.shift is not None else 0.5))
 
 
 def viewpoint_weights(model: PoseModel, azimuth: float, elevation: float, *, kappa: float

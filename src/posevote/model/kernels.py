@@ -14,8 +14,43 @@ describe ``int K2(x, x_i) K2(x, x_j) dx`` as a function of ``x_i - x_j``.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+
+from posevote._options import Options
+
+#: Combined orientation kernel concentration (doubled angles): no shipped
+#: configuration changes it; 8 passes edges within about 17 degrees.
+ORIENTATION_KAPPA = 8.0
+#: Training views whose pose kernel K1 is below this take no part in a
+#: viewpoint's probe or score: they would add features at negligible weight.
+K1_CUTOFF = 0.1
+
+
+@dataclass(frozen=True, kw_only=True, repr=False)
+class KernelOptions(Options):
+    """Widths of the kernels of psi, phi and p(w) (Eqs. 1-3).
+
+    Attributes
+    ----------
+    position_sigma : float, default 3.0
+        Combined appearance kernel width in position, pixels at scale 1.
+    viewpoint_bandwidth_deg : float or None, default None
+        Half width at half maximum of the pose kernel K1 on viewpoints;
+        None: half the median spacing of the training viewpoints
+        (:data:`posevote.model.density.MORPH_BANDWIDTH` spacings for
+        morphed models).
+    """
+
+    position_sigma: float = 3.0
+    viewpoint_bandwidth_deg: float | None = None
+
+    def __post_init__(self) -> None:
+        self._number("position_sigma", low=0.1, high=100.0)
+        self._number("viewpoint_bandwidth_deg", low=0.0, high=180.0, low_open=True,
+                     optional=True)
 
 
 def position_kernel(sq_distance: ArrayLike, sigma: float) -> NDArray[np.float64]:

@@ -2,22 +2,20 @@
 
 A model file is a NumPy ``.npz`` archive of plain numeric arrays plus one
 ``header`` entry: UTF-8 JSON with ``format`` (``"posevote-model"``),
-``version`` (an integer), the estimator's hyper-parameters and the model's
-names. ``allow_pickle`` is never enabled, so loading a file cannot run code.
+``version`` (an integer), the estimator's parameters (``params``, option
+groups as objects of their fields), the preset they come from with the
+parameters that differ from it (``preset``: ``{"name", "overrides"}``, or
+null), the model's names and training facts (``extra``).
+``allow_pickle`` is never enabled, so loading a file cannot run code.
 
-Version 2 adds the optional ``full_*`` arrays: the unpruned model of a
-pruned category model (for instance recognition and refinement). Version 1
-files are still read. The optional ``view_descriptor`` array (one appearance
-descriptor per training view, for ``verify_candidates``) and ``objectness``
-array (the verification's classifier) are additions that version-2 readers
-ignore, so they keep the version number; so is the header's optional
-``instance_size`` (each instance's training size relative to the reference,
-for ``instance_search``; files without it read as all 1), and the optional
-``shift`` and ``view_neighbour`` arrays (the morphing between turntable
-views, ``morph_views``; files without them are not morphed), and the
-optional ``box_regressor`` array (the box regressions of
-``appearance_refine``, one ``(4, D + 1)`` block of weights and intercepts
-per azimuth range).
+Arrays: the features (``xy``, ``theta``, ``view``, ``weight``) and views
+(``view_azimuth``, ``view_elevation``, ``view_box``, ``view_instance``) of
+the searched model; ``full_*`` feature arrays when it is pruned (the full
+model, for recognition and refinement); ``shift`` and ``view_neighbour``
+for morphed models; ``view_descriptor``, ``objectness`` and
+``box_regressor`` for the appearance stages. Version 3 (grouped
+parameters) is the only version read: files of versions 1-2 name
+parameters that no longer exist and must be retrained.
 """
 
 from __future__ import annotations
@@ -30,73 +28,70 @@ from typing import Any
 import numpy as np
 
 from posevote._io import atomic_open
+from posevote.features.appearance import descriptor_length
+from posevote.model.appearance import AppearanceModel
 from posevote.model.density import PoseModel
+from posevote.model.training import TrainedModel
 
 FORMAT_NAME = "posevote-model"
-FORMAT_VERSION = 2
+FORMAT_VERSION = 3
 
 _FEATURE_ARRAYS = ("xy", "theta", "view", "weight")
 _ARRAYS = (*_FEATURE_ARRAYS, "view_azimuth", "view_elevation", "view_box", "view_instance")
 _MORPH_ARRAYS = ("shift", "view_neighbour")
 
 
-def save_model(path: str | Path, model: PoseModel, params: dict[str, Any],
-               extra: dict[str, Any] | None = None, full_model: PoseModel | None = None,
-               descriptors: np.ndarray | None = None, objectness: np.ndarray | None = None,
-               box_regressor: np.ndarray | None = None) -> None:
+def save_model(path: str | Path, trained: TrainedModel, params: dict[str, Any], *,
+               preset: dict[str, Any] | None = None) -> None:
     """Write a model file atomically.
 
     Parameters
     ----------
     path : str or Path
         Destination (conventionally ``*.npz``).
-    model : PoseModel
-        The trained model.
+    trained : TrainedModel
+        What was learnt.
     params : dict
-        Estimator hyper-parameters (JSON-serialisable).
-    extra : dict, optional
-        Further JSON-serialisable facts to record (training statistics).
-    full_model : PoseModel, optional
-        The unpruned model, when ``model`` is pruned (same views).
-    descriptors : ndarray, shape (K, D), optional
-        Appearance descriptor of each training view.
-    objectness : ndarray, shape (D + 1,), optional
-        The verification's linear object/background classifier.
-    box_regressor : ndarray, shape (B, 4, D + 1), optional
-        The box regressions of ``appearance_refine``.
+        Estimator parameters, JSON-ready.
+    preset : dict, optional
+        ``{"name": ..., "overrides": {...}}``: the preset the parameters
+        come from and what differs from it.
     """
+    model, full = trained.model, trained.full_model
     header = {
         "format": FORMAT_NAME,
         "version": FORMAT_VERSION,
         "params": params,
+        "preset": preset,
         "instance_names": list(model.instance_names),
         "reference_size": model.reference_size,
         "category": model.category,
         "instance_size": list(model.instance_size),
-        "extra": extra or {},
+        "extra": {"viewpoint_kappa": trained.viewpoint_kappa, "pruning": trained.pruning,
+                  "descriptor_window": None if trained.appearance is None
+                  else list(trained.appearance.window)},
     }
     arrays = {name: getattr(model, name) for name in _ARRAYS}
     for name in _MORPH_ARRAYS:
         if getattr(model, name) is not None:
             arrays[name] = getattr(model, name)
-    if full_model is not None:
-        arrays.update({f"full_{name}": getattr(full_model, name) for name in _FEATURE_ARRAYS})
-        if full_model.shift is not None:
-            arrays["full_shift"] = full_model.shift
-    if descriptors is not None:
-        arrays["view_descriptor"] = np.asarray(descriptors, dtype=np.float32)
-    if objectness is not None:
-        arrays["objectness"] = np.asarray(objectness, dtype=np.float64)
-    if box_regressor is not None:
-        arrays["box_regressor"] = np.asarray(box_regressor, dtype=np.float64)
+    if full is not model:
+        arrays.update({f"full_{name}": getattr(full, name) for name in _FEATURE_ARRAYS})
+        if full.shift is not None:
+            arrays["full_shift"] = full.shift
+    look = trained.appearance
+    if look is not None:
+        arrays["view_descriptor"] = np.asarray(look.descriptors, dtype=np.float32)
+        if look.objectness is not None:
+            arrays["objectness"] = np.asarray(look.objectness, dtype=np.float64)
+        if look.regressor is not None:
+            arrays["box_regressor"] = np.asarray(look.regressor, dtype=np.float64)
     arrays["header"] = np.frombuffer(json.dumps(header).encode("utf-8"), dtype=np.uint8)
     with atomic_open(path, "wb") as fh:
         np.savez_compressed(fh, **arrays)
 
 
-def load_model(path: str | Path
-               ) -> tuple[PoseModel, dict[str, Any], dict[str, Any], PoseModel | None,
-                          np.ndarray | None, np.ndarray | None, np.ndarray | None]:
+def load_model(path: str | Path) -> tuple[TrainedModel, dict[str, Any]]:
     """Read a model file.
 
     Parameters
@@ -106,19 +101,9 @@ def load_model(path: str | Path
 
     Returns
     -------
-    model : PoseModel
+    trained : TrainedModel
     params : dict
-        The estimator hyper-parameters it was trained with.
-    extra : dict
-        Recorded training facts.
-    full_model : PoseModel or None
-        The unpruned model, if the file has one.
-    descriptors : ndarray of float32, shape (K, D), or None
-        The training views' appearance descriptors, if the file has them.
-    objectness : ndarray, shape (D + 1,), or None
-        The verification's object/background classifier, if the file has it.
-    box_regressor : ndarray, shape (B, 4, D + 1), or None
-        The box regressions of ``appearance_refine``, if the file has them.
+        The estimator parameters it was trained with (JSON form).
 
     Raises
     ------
@@ -141,10 +126,17 @@ def load_model(path: str | Path
             if not isinstance(header, dict) or header.get("format") != FORMAT_NAME:
                 raise ValueError(f"{path}: not a posevote model file")
             version = header.get("version")
-            if not isinstance(version, int) or version > FORMAT_VERSION:
+            if not isinstance(version, int) or isinstance(version, bool):
+                raise ValueError(f"{path}: corrupt model file (format version {version!r} "
+                                 "is not an integer)")
+            if version > FORMAT_VERSION:
                 raise ValueError(
                     f"{path}: model format version {version} is newer than this posevote reads "
-                    f"(up to {FORMAT_VERSION}); upgrade posevote or retrain the model")
+                    f"({FORMAT_VERSION}); upgrade posevote or retrain the model")
+            if version < FORMAT_VERSION:
+                raise ValueError(
+                    f"{path}: model format version {version} was written by an older posevote "
+                    f"(this one reads {FORMAT_VERSION}); retrain the model")
             arrays = {name: data[name] for name in _ARRAYS}
             arrays.update({name: data[name] for name in _MORPH_ARRAYS if name in data.files})
             full = ({name: data[f"full_{name}"] for name in _FEATURE_ARRAYS}
@@ -171,16 +163,41 @@ def load_model(path: str | Path
     full_model = None
     if full is not None:
         full_model = _build(path, {**arrays, **full}, header)
-    if descriptors is not None and (descriptors.ndim != 2
-                                    or descriptors.shape[0] != model.n_views):
-        raise ValueError(f"{path}: corrupt model file (view_descriptor has shape "
-                         f"{descriptors.shape} for {model.n_views} views)")
-    if regressor is not None and (regressor.ndim != 3 or regressor.shape[1] != 4
-                                  or not np.all(np.isfinite(regressor))):
-        raise ValueError(f"{path}: corrupt model file (box_regressor has shape "
-                         f"{regressor.shape}, or values that are not finite)")
-    return (model, dict(header.get("params", {})), dict(header.get("extra", {})), full_model,
-            descriptors, objectness, regressor)
+    extra = header.get("extra", {})
+    params = header.get("params", {})
+    if not isinstance(extra, dict) or not isinstance(params, dict):
+        raise ValueError(f"{path}: corrupt model file (params and extra must be objects)")
+    look = None
+    if descriptors is not None:
+        window = extra.get("descriptor_window")
+        if not (isinstance(window, list) and len(window) == 2
+                and all(isinstance(n, int) and 8 <= n <= 1024 for n in window)):
+            raise ValueError(f"{path}: corrupt model file (descriptor_window {window!r})")
+        win = (int(window[0]), int(window[1]))
+        length = descriptor_length(win)
+        if descriptors.shape != (model.n_views, length) or not np.all(np.isfinite(descriptors)):
+            raise ValueError(f"{path}: corrupt model file (view_descriptor has shape "
+                             f"{descriptors.shape} for {model.n_views} views of length {length},"
+                             " or values that are not finite)")
+        if objectness is not None and (objectness.shape != (length + 1,)
+                                       or not np.all(np.isfinite(objectness))):
+            raise ValueError(f"{path}: corrupt model file (objectness has shape "
+                             f"{objectness.shape}, or values that are not finite)")
+        if regressor is not None and (regressor.ndim != 3 or regressor.shape[1:] != (4, length + 1)
+                                      or not np.all(np.isfinite(regressor))):
+            raise ValueError(f"{path}: corrupt model file (box_regressor has shape "
+                             f"{regressor.shape}, or values that are not finite)")
+        look = AppearanceModel(window=win, descriptors=descriptors, objectness=objectness,
+                               regressor=regressor)
+    kappa = extra.get("viewpoint_kappa")
+    if not (isinstance(kappa, (int, float)) and not isinstance(kappa, bool)
+            and np.isfinite(kappa) and kappa > 0):
+        raise ValueError(f"{path}: corrupt model file (viewpoint_kappa {kappa!r})")
+    pruning = extra.get("pruning")
+    trained = TrainedModel(model=model, full_model=model if full_model is None else full_model,
+                           viewpoint_kappa=float(kappa), appearance=look,
+                           pruning=pruning if isinstance(pruning, dict) else None)
+    return trained, dict(params)
 
 
 def _build(path: Path, arrays: dict[str, np.ndarray], header: dict[str, Any]) -> PoseModel:
@@ -200,6 +217,12 @@ def _build(path: Path, arrays: dict[str, np.ndarray], header: dict[str, Any]) ->
                      and bool(np.all((neighbour >= -1) & (neighbour < k))))
     if not shapes_ok:
         raise ValueError(f"{path}: corrupt model file (inconsistent array shapes)")
+    for name in ("xy", "theta", "weight", "view_azimuth", "view_elevation", "view_box"):
+        if not np.all(np.isfinite(arrays[name])):
+            raise ValueError(f"{path}: corrupt model file (array {name} has values that are "
+                             "not finite)")
+    if np.any(arrays["view_box"] <= 0):
+        raise ValueError(f"{path}: corrupt model file (array view_box has boxes of zero size)")
     names = tuple(header.get("instance_names", []))
     size = header.get("instance_size", [])
     if not (isinstance(size, list) and (not size or len(size) == len(names))

@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.spatial import cKDTree
 
 from posevote.model.density import PoseModel
 from posevote.model.kernels import orientation_kernel, position_kernel, viewpoint_kernel
@@ -82,6 +81,9 @@ def _instance_weights(xy: NDArray[np.float64], theta: NDArray[np.float64],
     m, k_views = len(theta), len(directions)
     if m == 0:
         return np.zeros(0)
+    # imported where used, so that a command-line start does not pay for it
+    from scipy.spatial import cKDTree
+
     tree = cKDTree(xy)
     radius = 3.0 * position_sigma
     pairs = tree.query_pairs(radius, output_type="ndarray")

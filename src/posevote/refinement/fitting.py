@@ -17,7 +17,7 @@ training views pulls its mean toward the best sampled view; ``g = 0.5``
 decays about linearly with the angle (``1 - cos t = 2 sin^2(t / 2)``), a
 cusp. The default ``g`` (:data:`VIEW_SHAPE`) was chosen on rendered
 turntables, where that pull vanishes (``benchmarks/tune_rendered.py``,
-docs/TUNING.md).
+docs/DEFAULTS.md).
 
 Dimensions with fewer than three distinct probed values in the
 neighbourhood are not fitted (the probe value is kept); widths are bounded
@@ -32,7 +32,7 @@ from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
 from posevote.geometry import rotate_points, viewing_direction, wrap_angle
-from posevote.inference.search import ProbeSet
+from posevote.inference.search import ProbeSet, probe_spacing
 from posevote.results import Hypothesis
 
 #: Relative tolerance of the fit. scipy's default (1e-8) spends half of its
@@ -40,7 +40,7 @@ from posevote.results import Hypothesis
 #: takes 10 evaluations instead of 22 and the COIL cross-validation estimates
 #: move by a median 0.003 degree (a few flat fits end at another optimum, up
 #: to 4.6 degrees away; the CV error is unchanged). Measured by
-#: benchmarks/fit_tolerance.py (docs/TUNING.md).
+#: benchmarks/fit_tolerance.py (docs/DEFAULTS.md).
 FIT_TOLERANCE = 1e-4
 
 #: Exponent of the viewpoint term (module docstring). On rendered turntables
@@ -49,6 +49,10 @@ FIT_TOLERANCE = 1e-4
 #: with the von Mises-Fisher kernel (1.0), about 0 at 0.6 and -0.4 at 0.5;
 #: median errors 1.60 / 1.34 / 1.36 degrees.
 VIEW_SHAPE = 0.6
+
+#: Viewpoints within this many probe spacings of a mode take part in its fit
+#: (and in the local refinement's profile): two neighbours on either side.
+FIT_RADIUS_STEPS = 2.5
 
 
 def find_modes(probes: ProbeSet, *, max_modes: int = 3, min_separation: float = np.radians(30.0),
@@ -79,16 +83,6 @@ def find_modes(probes: ProbeSet, *, max_modes: int = 3, min_separation: float = 
                 directions[m] @ directions[v] < cos_sep for m in modes):
             modes.append(int(v))
     return modes
-
-
-def probe_spacing(probes: ProbeSet) -> float:
-    """Median angle between a probed viewpoint and its nearest neighbour."""
-    d = probes.directions
-    if len(d) < 2:
-        return np.pi
-    cosines = np.clip(d @ d.T, -1.0, 1.0)
-    np.fill_diagonal(cosines, -1.0)
-    return float(np.median(np.arccos(cosines.max(axis=1))))
 
 
 def neighbour_viewpoints(probes: ProbeSet, viewpoint: int, *, radius_steps: float

@@ -10,54 +10,24 @@ features, which is what puts the object's position within a pixel or two.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import replace
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
-from scipy.optimize import minimize
 
-from posevote.inference.search import ProbeSet, viewpoint_features
+from posevote.inference.search import ProbeSet, SearchSetup, viewpoint_features
 from posevote.inference.voting import TestMaps, gather_score
 from posevote.model.density import PoseModel
+from posevote.model.kernels import K1_CUTOFF
 from posevote.refinement.fitting import (
+    FIT_RADIUS_STEPS,
     VIEW_SHAPE,
     box_from_pose,
     neighbour_viewpoints,
     refine_mode,
 )
 from posevote.results import Hypothesis
-
-
-def rank_refined(hypotheses: Sequence[Hypothesis], refine: Callable[[int, Hypothesis], Hypothesis],
-                 n: int) -> list[Hypothesis]:
-    """Refine the first ``n`` hypotheses and rank them by their refined scores.
-
-    The search scores of different modes were read with the wide kernel at
-    grid poses; once refined, the narrow-kernel scores compare the modes at
-    their best poses. That put the right mode first more often on training
-    views pasted on clutter, but less often between training views
-    (docs/TUNING.md), so the estimator refines one mode by default.
-    Hypotheses beyond ``n`` follow, unrefined, in their original order.
-
-    Parameters
-    ----------
-    hypotheses : sequence of Hypothesis
-        The modes, best first by search score.
-    refine : callable
-        ``refine(k, hypothesis)`` returns the refined ``k``-th hypothesis.
-    n : int
-        How many to refine.
-
-    Returns
-    -------
-    list of Hypothesis
-    """
-    n = min(n, len(hypotheses))
-    refined = [refine(k, h) for k, h in enumerate(hypotheses[:n])]
-    order = sorted(range(n), key=lambda k: -refined[k].score)
-    return [refined[k] for k in order] + list(hypotheses[n:])
 
 
 def polish_pose(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps, *,
@@ -109,6 +79,9 @@ def polish_pose(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps, *,
                              float(np.exp(log_s)), u, v)
 
     initial = -negative_score(np.zeros(4))
+    # imported where used, so that a command-line start does not pay for it
+    from scipy.optimize import minimize
+
     result = minimize(negative_score, np.zeros(4), method="Nelder-Mead",
                       options={"xatol": 0.05, "fatol": 1e-5, "maxfev": 400,
                                "initial_simplex": np.vstack([np.zeros(4), 1.5 * np.eye(4)])})
@@ -119,74 +92,6 @@ def polish_pose(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps, *,
     return replace(hypothesis, inplane=float(alpha), scale=scale, position=(float(u), float(v)),
                    box=box_from_pose(np.array([u, v]), feats.box * scale, float(alpha)),
                    score=float(-result.fun))
-
-
-def score_pose(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps, *,
-               viewpoint_kappa: float, use_weights: bool = True, k1_cutoff: float = 0.1
-               ) -> Hypothesis:
-    """A pose with its exact narrow-kernel score p(w) and its box at its viewpoint.
-
-    Parameters
-    ----------
-    hypothesis : Hypothesis
-        The pose to score (kept as it is).
-    model, maps, viewpoint_kappa, use_weights, k1_cutoff
-        As in :func:`polish_pose`.
-
-    Returns
-    -------
-    Hypothesis
-    """
-    feats = viewpoint_features(model, hypothesis.azimuth, hypothesis.elevation,
-                               viewpoint_kappa=viewpoint_kappa, use_weights=use_weights,
-                               k1_cutoff=k1_cutoff)
-    u, v = hypothesis.position
-    score = gather_score(maps.density, feats.xy, feats.theta, feats.weight, hypothesis.inplane,
-                         hypothesis.scale, u, v) if feats.weight.sum() > 0 else 0.0
-    return replace(hypothesis, score=float(score),
-                   box=box_from_pose(np.array([u, v]), feats.box * hypothesis.scale,
-                                     hypothesis.inplane))
-
-
-def interpolate_alignment(azimuth: float, view_azimuth: NDArray[np.float64],
-                          aligned: Sequence[Hypothesis]
-                          ) -> tuple[float, float, tuple[float, float]] | None:
-    """In-plane angle, scale and position between the alignments of two viewpoints.
-
-    Beyond the paper. Between two training views no single view matches
-    the image under a similarity transform: each neighbour's best alignment
-    leans its own way (in-plane angle and position), and a polish of their
-    blend leans toward whichever has the stronger edges. Interpolating the
-    two alignments linearly in azimuth cancels much of that.
-
-    Parameters
-    ----------
-    azimuth : float
-        The fitted azimuth, radians.
-    view_azimuth : ndarray, shape (V,)
-        Azimuths of the aligned viewpoints (one elevation), radians.
-    aligned : sequence of Hypothesis
-        Each viewpoint's alignment (in-plane angle, scale, position).
-
-    Returns
-    -------
-    (float, float, (float, float)) or None
-        In-plane angle, scale and position, or None when all the viewpoints
-        lie on one side of ``azimuth`` (within half a turn).
-    """
-    d = np.mod(np.asarray(view_azimuth, dtype=np.float64) - azimuth + np.pi, 2 * np.pi) - np.pi
-    before, after = np.flatnonzero(d <= 0), np.flatnonzero(d > 0)
-    if len(before) == 0 or len(after) == 0:
-        return None
-    a = int(before[np.argmax(d[before])])
-    b = int(after[np.argmin(d[after])])
-    t = float(-d[a] / (d[b] - d[a]))
-    pa, pb = aligned[a], aligned[b]
-    turn = float(np.mod(pb.inplane - pa.inplane + np.pi, 2 * np.pi) - np.pi)
-    scale = float(np.exp((1 - t) * np.log(pa.scale) + t * np.log(pb.scale)))
-    u, v = (1 - t) * np.asarray(pa.position) + t * np.asarray(pb.position)
-    alpha = float(np.mod(pa.inplane + t * turn + np.pi, 2 * np.pi) - np.pi)
-    return alpha, scale, (float(u), float(v))
 
 
 def probe_pose(probes: ProbeSet, viewpoint: int, inplane: int, scale: int) -> Hypothesis:
@@ -311,8 +216,7 @@ def profile_refine(probes: ProbeSet, viewpoint: int, model: PoseModel, maps: Tes
                    viewpoint_kappa: float, use_weights: bool = True, k1_cutoff: float = 0.1,
                    radius_steps: float = 2.5, scale_margin: float | None = None,
                    view_shape: float = VIEW_SHAPE, anchor: Hypothesis | None = None,
-                   frame_scale: float = 1.0, interpolate: bool = False
-                   ) -> Hypothesis:
+                   frame_scale: float = 1.0) -> Hypothesis:
     """Fit the viewpoint on the profile likelihood, then polish (beyond the paper).
 
     For every probed viewpoint near the mode, the exact p(w) is maximised over
@@ -350,12 +254,6 @@ def profile_refine(probes: ProbeSet, viewpoint: int, model: PoseModel, maps: Tes
     frame_scale : float, optional
         ``maps`` tabulate the test image divided by this factor (the kernel
         in object units at that scale); poses are converted in and out.
-    interpolate : bool, optional
-        On a turntable, take the in-plane angle, scale and position at the
-        fitted azimuth from the polished alignments of the two viewpoints
-        on either side of it (:func:`interpolate_alignment`) instead of
-        polishing the blend of their features there.
-
     Returns
     -------
     Hypothesis
@@ -385,14 +283,63 @@ def profile_refine(probes: ProbeSet, viewpoint: int, model: PoseModel, maps: Tes
     if not fitted.refined:
         return in_frame(seed, 1.0 / frame_scale)
     moved = replace(seed, azimuth=fitted.azimuth, elevation=fitted.elevation, refined=True)
-    between = interpolate_alignment(fitted.azimuth, profile.azimuth, polished) \
-        if interpolate and profile.turntable else None
-    kw: dict[str, Any] = {"viewpoint_kappa": viewpoint_kappa, "use_weights": use_weights,
-                          "k1_cutoff": k1_cutoff}
-    if between is None:
-        final = polish_pose(moved, model, maps, scale_bounds=bounds, **kw)
-    else:
-        alpha, scale, position = between
-        final = score_pose(replace(moved, inplane=alpha, scale=scale, position=position), model,
-                           maps, **kw)
+    final = polish_pose(moved, model, maps, viewpoint_kappa=viewpoint_kappa,
+                        use_weights=use_weights, k1_cutoff=k1_cutoff, scale_bounds=bounds)
     return replace(in_frame(final, 1.0 / frame_scale), refined=True)
+
+
+#: The local refinement keeps the scale within this many steps of the search's
+#: scale grid (at least 5% a step) of the mode's best probe: its narrow score
+#: is not corrected for chance, and in clutter it grows as the model shrinks
+#: onto dense edges (chosen on the clutter self-test, docs/DEFAULTS.md).
+REFINE_SCALE_STEPS = 1.0
+
+
+def local_refine(probes: ProbeSet, viewpoint: int, hypothesis: Hypothesis, model: PoseModel,
+                 maps: TestMaps, setup: SearchSetup, *, fitting: bool,
+                 scale_maps: Sequence[TestMaps] | None = None) -> Hypothesis:
+    """The local refinement of one mode (beyond the paper).
+
+    With ``fitting``, the profile likelihood around the mode's best
+    viewpoint is fitted (:func:`profile_refine`); with per-scale narrow
+    maps (``scale_maps``, object units) the mode's scale is first chosen
+    again among the search's scales (:func:`rescale_anchor`): the search's
+    wide kernel blurs the object's inner detail, so that under occlusion a
+    model shrunk onto the visible part scores as well as the right one.
+    Without ``fitting`` the mode's pose is only polished (:func:`polish_pose`).
+
+    Parameters
+    ----------
+    probes : ProbeSet
+        The search's probes.
+    viewpoint : int
+        The mode's best viewpoint.
+    hypothesis : Hypothesis
+        The mode's pose (fitted or not).
+    model : PoseModel
+    maps : TestMaps
+        The test image with the narrow kernel, pixels.
+    setup : SearchSetup
+        The search's setup (kernel, weights, scale grid).
+    fitting : bool
+        Fit the viewpoint (else polish only).
+    scale_maps : sequence of TestMaps, optional
+        Narrow maps per searched scale (object units).
+
+    Returns
+    -------
+    Hypothesis
+    """
+    kw: dict[str, Any] = {"viewpoint_kappa": setup.viewpoint_kappa,
+                          "use_weights": setup.use_weights, "k1_cutoff": K1_CUTOFF}
+    if not fitting:
+        return polish_pose(hypothesis, model, maps, **kw)
+    margin = REFINE_SCALE_STEPS * max(setup.options.scale_step(), 0.05)
+    if scale_maps is not None and (
+            chosen := rescale_anchor(probes, viewpoint, model, list(scale_maps), **kw)):
+        anchor, s = chosen
+        return profile_refine(probes, viewpoint, model, scale_maps[s], scale_margin=margin,
+                              radius_steps=FIT_RADIUS_STEPS, anchor=anchor,
+                              frame_scale=float(probes.scale[s]), **kw)
+    return profile_refine(probes, viewpoint, model, maps, scale_margin=margin,
+                          radius_steps=FIT_RADIUS_STEPS, **kw)

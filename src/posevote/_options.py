@@ -1,0 +1,82 @@
+"""The base of the estimator's option groups: frozen, self-validating, compact repr.
+
+Each stage owns one group (``EdgeOptions``, ``SearchOptions``, ...), a
+frozen keyword-only dataclass that checks its fields when it is built, so
+a bad value is refused where it is written, naming the group, the field and
+the accepted range.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any
+
+import numpy as np
+
+
+class Options:
+    """Mixin of the option groups: validation helpers, a repr of what differs, JSON."""
+
+    def _fail(self, name: str, expected: str, value: Any) -> None:
+        raise ValueError(f"{type(self).__name__}.{name} must be {expected}, got {value!r}")
+
+    def _number(self, name: str, *, low: float = -math.inf, high: float = math.inf,
+                low_open: bool = False, high_open: bool = False, optional: bool = False,
+                integer: bool = False) -> None:
+        """Check field ``name``: a finite (integer) number within the bounds (or None)."""
+        value = getattr(self, name)
+        if value is None and optional:
+            return
+        kinds: tuple[type, ...] = (int, np.integer) if integer else (int, float, np.integer,
+                                                                       np.floating)
+        ok = isinstance(value, kinds) and not isinstance(value, (bool, np.bool_))
+        ok = ok and math.isfinite(float(value))
+        ok = ok and (value > low if low_open else value >= low)
+        ok = ok and (value < high if high_open else value <= high)
+        if not ok:
+            lo = "(" if low_open else "["
+            hi = ")" if high_open else "]"
+            kind = "an integer" if integer else "a finite number"
+            bounds = f"{lo}{low:g}, {high:g}{hi}"
+            self._fail(name, f"{kind} in {bounds}" + (" or None" if optional else ""), value)
+
+    def _flag(self, name: str) -> None:
+        if not isinstance(getattr(self, name), (bool, np.bool_)):
+            self._fail(name, "True or False", getattr(self, name))
+
+    def _pair(self, name: str) -> tuple[float, float]:
+        """Check field ``name``: a pair of finite numbers, low <= high; returns it."""
+        value = getattr(self, name)
+        try:
+            low, high = (float(v) for v in value)
+        except (TypeError, ValueError):
+            self._fail(name, "a pair of numbers (low, high)", value)
+        if not (math.isfinite(low) and math.isfinite(high) and low <= high):
+            self._fail(name, "a pair of finite numbers with low <= high", value)
+        return low, high
+
+    def __repr__(self) -> str:
+        changed = [f"{f.name}={getattr(self, f.name)!r}" for f in dataclasses.fields(self)
+                   if getattr(self, f.name) != f.default]
+        return f"{type(self).__name__}({', '.join(changed)})"
+
+    def to_dict(self) -> dict[str, Any]:
+        """The fields as a JSON-ready dict (tuples as lists)."""
+        return {f.name: (list(v) if isinstance(v, tuple) else v)
+                for f in dataclasses.fields(self) for v in [getattr(self, f.name)]}
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any], *, where: str = "") -> Any:
+        """The group from :meth:`to_dict`'s output; unknown keys raise ``ValueError``."""
+        if not isinstance(data, dict):
+            raise ValueError(f"{where}{cls.__name__} must be a mapping of its fields, "
+                             f"got {data!r}")
+        names = {f.name: f for f in dataclasses.fields(cls)}
+        unknown = sorted(set(data) - set(names))
+        if unknown:
+            raise ValueError(f"{where}unknown {cls.__name__} field(s) {', '.join(unknown)}; "
+                             f"valid: {', '.join(names)}")
+        values = {k: (tuple(v) if isinstance(v, list) else v) for k, v in data.items()}
+        return cls(**values)
+

@@ -1,0 +1,204 @@
+"""Training (Sec. II-A, II-C, III-A): pose-annotated images to a weighted, optionally pruned model.
+
+:func:`train_model` reads each training image once: its edges inside the
+object's box (and mask), its appearance descriptors when the appearance
+stages are wanted, and its crop for the morphing between turntable views;
+then it builds psi (:func:`posevote.model.density.build_model`), weighs the
+features (Eq. 4) and prunes the pooled model (Sec. III-A).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from posevote.data.images import as_gray_float, read_image, read_mask
+from posevote.features.edges import EdgeOptions, box_mask, extract_edges
+from posevote.geometry import box_centre
+from posevote.model.appearance import AppearanceCollector, AppearanceModel
+from posevote.model.density import PoseModel, build_model, viewpoint_kappa
+from posevote.model.kernels import ORIENTATION_KAPPA, KernelOptions
+from posevote.model.morph import ViewCrops, turntable_neighbours, view_shifts
+from posevote.model.pruning import PruningPreset, prune_model
+from posevote.model.weights import feature_weights
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class TrainedModel:
+    """Everything :func:`train_model` learns (what a model file holds).
+
+    Attributes
+    ----------
+    model : PoseModel
+        The searched model (pruned, or the full one).
+    full_model : PoseModel
+        The full model (recognition and refinement read it).
+    viewpoint_kappa : float
+        Concentration of the pose kernel K1.
+    appearance : AppearanceModel or None
+        The appearance stages' model, when asked for.
+    pruning : dict or None
+        The pruning knobs used (None: not pruned).
+    """
+
+    model: PoseModel
+    full_model: PoseModel
+    viewpoint_kappa: float
+    appearance: AppearanceModel | None = None
+    pruning: dict[str, Any] | None = None
+
+
+def _check_inputs(images: list[Any], poses: ArrayLike, boxes: ArrayLike | None,
+                  masks: Sequence[Any] | None, instances: Sequence[str] | None
+                  ) -> tuple[NDArray[np.float64], NDArray[np.float64], list[Any], list[str]]:
+    k = len(images)
+    if k == 0:
+        raise ValueError("images: need at least one training image")
+    pose_arr = np.asarray(poses, dtype=np.float64)
+    if pose_arr.ndim == 1:
+        pose_arr = pose_arr[:, None]
+    if pose_arr.ndim != 2 or pose_arr.shape[0] != k or not 1 <= pose_arr.shape[1] <= 3:
+        raise ValueError(f"poses must have shape ({k},), ({k}, 2) or ({k}, 3) for {k} images, "
+                         f"got {np.shape(poses)}")
+    if not np.all(np.isfinite(pose_arr)):
+        row = int(np.flatnonzero(~np.all(np.isfinite(pose_arr), axis=1))[0])
+        raise ValueError(f"poses: row {row} is not finite ({pose_arr[row].tolist()})")
+    pose_arr = np.hstack([pose_arr, np.zeros((k, 3 - pose_arr.shape[1]))])
+    box_arr = (np.full((k, 4), np.nan) if boxes is None
+               else np.asarray(boxes, dtype=np.float64).reshape(-1, 4))
+    if box_arr.shape[0] != k:
+        raise ValueError(f"boxes must have {k} rows, got {box_arr.shape[0]}")
+    mask_list = list(masks) if masks is not None else [None] * k
+    if len(mask_list) != k:
+        raise ValueError(f"masks must have {k} entries, got {len(mask_list)}")
+    names = list(instances) if instances is not None else ["object"] * k
+    if len(names) != k:
+        raise ValueError(f"instances must have {k} entries, got {len(names)}")
+    return pose_arr, box_arr, mask_list, names
+
+
+def _object_box(label: str, img: NDArray[np.float64], box: NDArray[np.float64],
+                mask: NDArray[np.bool_] | None) -> NDArray[np.float64]:
+    """The training box: given, else the mask's, else the whole image; checked inside it."""
+    if np.all(np.isnan(box)):
+        if mask is not None:
+            rows, cols = np.nonzero(mask)
+            return np.array([cols.min(), rows.min(), np.ptp(cols) + 1, np.ptp(rows) + 1],
+                            dtype=float)
+        return np.array([0.0, 0.0, img.shape[1], img.shape[0]])
+    if not np.all(np.isfinite(box)):
+        raise ValueError(f"{label}: box {box.tolist()} has NaN values")
+    x, y, w, h = box
+    if w <= 0 or h <= 0 or x < -0.5 or y < -0.5 or x + w > img.shape[1] + 0.5 \
+            or y + h > img.shape[0] + 0.5:
+        raise ValueError(f"{label}: box (x={x:g}, y={y:g}, w={w:g}, h={h:g}) is not inside "
+                         f"the {img.shape[1]}x{img.shape[0]} image")
+    return box
+
+
+def _read_mask(label: str, mask: Any, shape: tuple[int, ...]) -> NDArray[np.bool_] | None:
+    if mask is None:
+        return None
+    if not isinstance(mask, np.ndarray):
+        mask = read_mask(mask)
+    mask = np.asarray(mask, dtype=bool)
+    if mask.shape != shape:
+        raise ValueError(f"{label}: mask shape {mask.shape} differs from image shape {shape}")
+    if not mask.any():
+        raise ValueError(f"{label}: the mask is empty")
+    return mask
+
+
+def train_model(images: Sequence[str | Path | NDArray], poses: ArrayLike, *,
+                boxes: ArrayLike | None = None, masks: Sequence[Any] | None = None,
+                instances: Sequence[str] | None = None, category: str = "",
+                edges: EdgeOptions = EdgeOptions(), kernel: KernelOptions = KernelOptions(),
+                morph: bool = False, prune: PruningPreset | None = None,
+                appearance: bool = False, progress: Callable[[int], None] | None = None
+                ) -> TrainedModel:
+    """Learn a model from pose-annotated images (Sec. II-A, II-C, III-A).
+
+    Parameters
+    ----------
+    images, poses, boxes, masks, instances, category, progress
+        As in :meth:`posevote.estimator.PoseEstimator.fit`.
+    edges : EdgeOptions
+        Edge extraction.
+    kernel : KernelOptions
+        Kernel widths (the weights of Eq. 4 and the pose kernel K1).
+    morph : bool
+        Measure the features' motion between neighbouring turntable views.
+    prune : PruningPreset or None
+        Prune the pooled model with these knobs.
+    appearance : bool
+        Learn the appearance model (descriptors, classifier, box regressions).
+
+    Returns
+    -------
+    TrainedModel
+    """
+    images = list(images)
+    pose_arr, box_arr, mask_list, names = _check_inputs(images, poses, boxes, masks, instances)
+    k = len(images)
+    feats, centres, sizes = [], np.zeros((k, 2)), np.zeros((k, 2))
+    collector = AppearanceCollector(box_arr) if appearance else None
+    crops = ViewCrops() if morph else None
+    for i, image in enumerate(images):
+        label = str(image) if isinstance(image, (str, Path)) else f"images[{i}]"
+        img = read_image(image) if isinstance(image, (str, Path)) else \
+            as_gray_float(image, name=label)
+        mask = _read_mask(label, mask_list[i], img.shape)
+        box = _object_box(label, img, box_arr[i], mask)
+        region = box_mask(img.shape, box)
+        if mask is not None:
+            # The mask grown by 2 pixels: edges on the outline stay.
+            grown = cv2.dilate(mask.astype(np.uint8), np.array([[0, 1, 0], [1, 1, 1], [0, 1, 0]],
+                                                                dtype=np.uint8), iterations=2)
+            region &= grown.astype(bool)
+        f = extract_edges(img, edges, training=True, mask=region)
+        if len(f) == 0:
+            raise ValueError(f"{label}: no edges found on the object; check the box/mask "
+                             "or lower EdgeOptions.thresholds")
+        feats.append(f)
+        if collector is not None:
+            collector.add(img, box, float(pose_arr[i, 0]))
+        if crops is not None:
+            crops.add(img, box)
+        centres[i] = box_centre(box)
+        sizes[i] = box[2:]
+        if progress is not None:
+            progress(1)
+
+    instance_names = sorted(set(names))
+    inst_index = np.array([instance_names.index(n) for n in names])
+    # Each instance keeps its own typical size; instances are brought to the
+    # common reference size (the median of their median box heights).
+    inst_height = np.array([np.median(sizes[inst_index == j, 1])
+                            for j in range(len(instance_names))])
+    reference = float(np.median(inst_height))
+    inst_size = inst_height / reference
+    scales = inst_size[inst_index]
+    model = build_model(feats, poses=pose_arr, centers=centres, scales=scales, box_sizes=sizes,
+                        instances=inst_index, instance_names=instance_names,
+                        reference_size=reference, category=category,
+                        instance_size=inst_size.tolist())
+    if crops is not None:
+        neighbours = turntable_neighbours(model.view_azimuth, model.view_elevation,
+                                          model.view_instance)
+        model = replace(model, view_neighbour=neighbours, shift=view_shifts(
+            feats, crops, neighbours, centers=centres, scales=scales, inplanes=pose_arr[:, 2]))
+    kappa = viewpoint_kappa(model, kernel.viewpoint_bandwidth_deg)
+    weights = feature_weights(model, position_sigma=kernel.position_sigma,
+                              orientation_kappa=ORIENTATION_KAPPA, viewpoint_kappa=kappa)
+    full = model.with_weights(weights)
+    searched = full if prune is None else prune_model(
+        full, prune, position_sigma=kernel.position_sigma, orientation_kappa=ORIENTATION_KAPPA)
+    return TrainedModel(model=searched, full_model=full, viewpoint_kappa=kappa,
+                        appearance=None if collector is None else collector.finish(sizes),
+                        pruning=None if prune is None else asdict(prune))

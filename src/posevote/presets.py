@@ -1,0 +1,121 @@
+"""Named presets: the configurations tuned on real data, each with where it was chosen.
+
+A preset is a set of :class:`~posevote.estimator.PoseEstimator` parameters
+and its provenance: the data it was chosen on, the script that chose it and
+what it measured there (``docs/DEFAULTS.md`` has every value's row).
+``PoseEstimator.from_preset(name, **overrides)`` builds one; the evaluation
+protocols and the demo build theirs from presets only.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+from posevote.features.edges import EdgeOptions
+from posevote.inference.search import SearchOptions
+from posevote.model.appearance import AppearanceOptions
+from posevote.model.kernels import KernelOptions
+from posevote.refinement.instance import RecognitionOptions
+
+
+@dataclass(frozen=True, kw_only=True)
+class Preset:
+    """A named configuration and its provenance.
+
+    Attributes
+    ----------
+    name : str
+    description : str
+        One line: what it is for.
+    chosen_on : str
+        The data its values were chosen on (training data only).
+    script : str
+        The script that measured the choice.
+    measured : str
+        What it measured, and where the result file is.
+    params : dict
+        :class:`~posevote.estimator.PoseEstimator` parameters (the others at
+        their defaults).
+    """
+
+    name: str
+    description: str
+    chosen_on: str
+    script: str
+    measured: str
+    params: dict[str, Any] = field(default_factory=dict)
+
+
+# The EPFL search: a regular 10-degree viewpoint grid with a 5-degree pose
+# kernel (a car sequence has a view every 3 degrees), scales 0.7-1.45 (the
+# spread of the cars' box heights around the pooled reference), 150 features
+# per view, the kernel in object units with the chance correction, and the
+# most similar training car's model re-estimating near the category's mode.
+_EPFL_SEARCH = SearchOptions(viewpoint_step_deg=10.0, scale_range=(0.7, 1.45), scale_steps=6,
+                             object_kernel=True, chance_correction=True, density_cap=0.5,
+                             max_search_features=1000)
+
+PRESETS: dict[str, Preset] = {p.name: p for p in (
+    Preset(
+        name="default",
+        description="clean views of one object at a fixed distance, upright (COIL-100)",
+        chosen_on="COIL-100, the 16 objects of the paper: views at 0, 40, ..., 320 deg "
+                  "trained, the training views between them tested",
+        script="benchmarks/tune_coil_cv.py",
+        measured="COIL instance protocol 1.81 / 3.45 deg median / mean "
+                 "(docs/results/coil_instance.md)",
+        params={}),
+    Preset(
+        name="cluttered",
+        description="one object anywhere in clutter, tilted by up to 30 deg, 0.7-1.3 times "
+                    "the training size, partly occluded",
+        chosen_on="COIL-100 training views pasted on clutter (self-test and cross-validation "
+                  "on the training views)",
+        script="benchmarks/coil_instance.py --selftest --clutter / --cv --clutter",
+        measured="COIL instance protocol in clutter 3.93 / 11.32 deg, 72.7% of positions "
+                 "within 5 px (docs/results/coil_instance_clutter.md)",
+        params={"search": SearchOptions(inplane_range_deg=(-30.0, 30.0), inplane_step_deg=5.0,
+                                        scale_range=(0.7, 1.3), scale_steps=7,
+                                        object_kernel=True, chance_correction=True,
+                                        density_cap=0.5),
+                "local_refinement": True}),
+    Preset(
+        name="turntable",
+        description="dense turntable views of one object, full frames at a fixed distance, "
+                    "features morphed between neighbouring views (EPFL single car)",
+        chosen_on="EPFL cars 2-10, the epfl-single protocol on each (car 1 only reports)",
+        script="benchmarks/tune_epfl.py --protocol epfl-single",
+        measured="epfl-single (car 1, 40 training frames) 0.57 / 0.89 deg "
+                 "(docs/results/epfl-single)",
+        params={"edges": EdgeOptions(max_train_features=150),
+                "search": SearchOptions(viewpoint_subdivisions=2, scale_steps=5,
+                                        object_kernel=True, chance_correction=True),
+                "local_refinement": True, "morph_views": True}),
+    Preset(
+        name="category",
+        description="a category learnt from several instances, found in full cluttered "
+                    "frames, with HOG verification and the nearest view (EPFL 10/10)",
+        chosen_on="EPFL cars 1-10, the two-fold epfl-cv (cars 1-5 <-> 6-10)",
+        script="benchmarks/tune_epfl.py",
+        measured="epfl-cv every 4th frame 4.53 / 28.8 deg, 82.1% under 45 deg, 91.6% found "
+                 "(docs/results/epfl-cv)",
+        params={"edges": EdgeOptions(max_train_features=150),
+                "kernel": KernelOptions(position_sigma=6.0, viewpoint_bandwidth_deg=5.0),
+                "search": _EPFL_SEARCH,
+                "recognition": RecognitionOptions(margin=1.0, search=False),
+                "appearance": AppearanceOptions()}),
+)}
+
+
+def get_preset(name: str) -> Preset:
+    """The preset called ``name``.
+
+    Raises
+    ------
+    ValueError
+        On an unknown name (the message lists the presets).
+    """
+    if not isinstance(name, str) or name not in PRESETS:
+        raise ValueError(f"unknown preset {name!r}; choose one of {', '.join(PRESETS)}")
+    return PRESETS[name]

@@ -1,0 +1,184 @@
+"""Refinement with an instance model (Sec. III-B): recognise the instance, re-estimate with it.
+
+A category model pools the views of several instances; its estimate is
+blurred by their differences. Each instance is scored at the category's
+estimate (Eqs. 5-6, :func:`posevote.inference.recognition.explained_fraction`)
+and, when one wins by ``margin``, the pose is estimated again near the
+category's mode with that instance's own (full, unpruned) model. With
+``search`` (beyond the paper), each instance's model first estimates the pose
+on its own, over every viewpoint and on the scale grid centred on the
+instance's training size, and the instances are scored at their own
+estimates: a near search cannot undo the category's front/back confusions,
+and a grid centred on the median instance misses the small and large ones.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from posevote._options import Options
+from posevote.features.edges import EdgeFeatures
+from posevote.geometry import angular_error
+from posevote.inference.recognition import explained_fraction, recognition_margin
+from posevote.inference.search import SearchSetup, probe
+from posevote.inference.voting import TestMaps
+from posevote.model.density import PoseModel
+from posevote.model.kernels import K1_CUTOFF, ORIENTATION_KAPPA
+from posevote.refinement.fitting import FIT_RADIUS_STEPS, refine_mode
+from posevote.refinement.local import local_refine, polish_pose
+from posevote.results import Hypothesis
+
+#: Without ``search``, instances are scored at this many of the best category
+#: modes (a front/back confusion of the category can be an instance's right
+#: pose); the instance is refined at the mode where it scored best.
+RECOGNITION_MODES = 2
+
+
+@dataclass(frozen=True, kw_only=True, repr=False)
+class RecognitionOptions(Options):
+    """Instance recognition and re-estimation for models of several instances (Sec. III-B).
+
+    Attributes
+    ----------
+    margin : float, default 1.05
+        The winner's score must be at least this multiple of the runner-up's
+        (chosen by the COIL category cross-validation on training views;
+        1.0 always refines with the most similar instance).
+    search : bool, default True
+        Each instance's full model estimates the pose on its own and the
+        instances are judged at their own estimates (beyond the paper);
+        False: the paper's scoring at the category's modes and re-estimation
+        near them.
+    """
+
+    margin: float = 1.05
+    search: bool = True
+
+    def __post_init__(self) -> None:
+        self._number("margin", low=1.0, high=100.0)
+        self._flag("search")
+
+
+def _kw(setup: SearchSetup) -> dict[str, Any]:
+    return {"viewpoint_kappa": setup.viewpoint_kappa, "use_weights": setup.use_weights,
+            "k1_cutoff": K1_CUTOFF}
+
+
+def explained(hypotheses: Sequence[Hypothesis], features: EdgeFeatures, full: PoseModel,
+              maps: TestMaps, setup: SearchSetup) -> NDArray[np.float64]:
+    """Each instance's explained fraction (Eqs. 5-6), aligned from its own hypothesis.
+
+    Each instance's own model is first aligned to the image from its
+    hypothesis (in-plane angle, scale and translation polished on the exact
+    p(w), since instances differ in shape); all instances are then judged on
+    the same test features, those in the union of their boxes.
+
+    Parameters
+    ----------
+    hypotheses : sequence of Hypothesis
+        One per instance of ``full``.
+    features : EdgeFeatures
+        The test image's features.
+    full : PoseModel
+        The full (unpruned) model of all instances.
+    maps : TestMaps
+        The test image tabulated with the narrow kernel.
+    setup : SearchSetup
+
+    Returns
+    -------
+    ndarray, shape (n_instances,)
+    """
+    kw = _kw(setup)
+    subs = [full.instance_model(i) for i in range(len(full.instance_names))]
+    aligned = [polish_pose(h, sub, maps, **kw) for h, sub in zip(hypotheses, subs, strict=True)]
+    corners = np.array([[h.box[0], h.box[1], h.box[0] + h.box[2], h.box[1] + h.box[3]]
+                        for h in aligned])
+    lo, hi = corners[:, :2].min(axis=0), corners[:, 2:].max(axis=0)
+    box = (float(lo[0]), float(lo[1]), float(hi[0] - lo[0]), float(hi[1] - lo[1]))
+    return np.array([
+        explained_fraction(features, sub, h, box=box, position_sigma=setup.position_sigma,
+                           orientation_kappa=ORIENTATION_KAPPA, **kw)
+        for sub, h in zip(subs, aligned, strict=True)])
+
+
+def instance_refine(instance: int, hypothesis: Hypothesis, full: PoseModel,
+                    search_maps: TestMaps | list[TestMaps], fine: TestMaps, setup: SearchSetup,
+                    *, fitting: bool, local: bool, near: bool = True) -> Hypothesis:
+    """Re-estimate near ``hypothesis`` with one instance's full model (Sec. III-B).
+
+    With ``near=False`` the instance searches every viewpoint, on the scale
+    grid centred on its training size (``RecognitionOptions.search``); with
+    ``local`` the result is refined locally
+    (:func:`posevote.refinement.local.local_refine`).
+    """
+    model = full.instance_model(instance)
+    probes = probe(model, search_maps, setup, near=hypothesis) if near else \
+        probe(model, search_maps, setup, size=full.size_of(instance))
+    if not probes.score.any():
+        return hypothesis
+    v = int(np.argmax(probes.score.max(axis=(1, 2))))
+    refined = refine_mode(probes, v, fit=fitting, radius_steps=FIT_RADIUS_STEPS)
+    if local:
+        refined = local_refine(probes, v, refined, model, fine, setup, fitting=fitting)
+    return refined
+
+
+def recognize(hypotheses: list[Hypothesis], features: EdgeFeatures, full: PoseModel,
+              search_maps: TestMaps | list[TestMaps], fine: TestMaps, setup: SearchSetup,
+              options: RecognitionOptions, *, fitting: bool, local: bool
+              ) -> tuple[list[Hypothesis], str, float]:
+    """Recognise the instance and re-estimate with its model (Sec. III-B).
+
+    Parameters
+    ----------
+    hypotheses : list of Hypothesis
+        The category's modes, best first.
+    features : EdgeFeatures
+        The test features (inside the verified box, if any).
+    full : PoseModel
+        The full model of all instances.
+    search_maps : TestMaps or list of TestMaps
+        The search's maps.
+    fine : TestMaps
+        The narrow maps.
+    setup : SearchSetup
+    options : RecognitionOptions
+    fitting, local : bool
+        Fit and locally refine the instance's estimate.
+
+    Returns
+    -------
+    modes : list of Hypothesis
+        The instance's estimate first when one wins by ``options.margin``.
+    instance : str
+        Its name ("" if none won).
+    margin : float
+        The recognition margin.
+    """
+    names = full.instance_names
+    if options.search:
+        own = [instance_refine(i, hypotheses[0], full, search_maps, fine, setup,
+                               fitting=fitting, local=local, near=False)
+               for i in range(len(names))]
+        best, margin = recognition_margin(explained(own, features, full, fine, setup))
+        if margin < options.margin:
+            return hypotheses, "", margin
+        # The category mode nearest to the instance's estimate gives way to it.
+        at = int(np.argmin([angular_error(h.azimuth, own[best].azimuth) for h in hypotheses]))
+        refined = own[best]
+    else:
+        per_mode = np.array([explained([h] * len(names), features, full, fine, setup)
+                             for h in hypotheses[:RECOGNITION_MODES]])
+        best, margin = recognition_margin(per_mode.max(axis=0))
+        if margin < options.margin:
+            return hypotheses, "", margin
+        at = int(np.argmax(per_mode[:, best]))
+        refined = instance_refine(best, hypotheses[at], full, search_maps, fine, setup,
+                                  fitting=fitting, local=local)
+    return [refined] + [h for k, h in enumerate(hypotheses) if k != at], names[best], margin

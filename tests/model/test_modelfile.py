@@ -1,0 +1,102 @@
+"""The model file: round trip, and refusal of missing, foreign, corrupt or other-version files."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from posevote.model.appearance import AppearanceModel
+from posevote.model.modelfile import FORMAT_VERSION, load_model, save_model
+from posevote.model.training import TrainedModel
+
+
+def _trained(model, **kw):
+    return TrainedModel(model=model, full_model=model, viewpoint_kappa=3.0, **kw)
+
+
+def _rewrite(src, dst, **changes):
+    """Copy a model file with some arrays (or, as ``header=dict``, header fields) changed."""
+    with np.load(src) as data:
+        arrays = dict(data)
+    header = json.loads(arrays["header"].tobytes())
+    header.update(changes.pop("header", {}))
+    arrays.update(changes)
+    arrays["header"] = np.frombuffer(json.dumps(header).encode(), dtype=np.uint8)
+    np.savez(dst, **arrays)
+
+
+def test_model_file_round_trip(tmp_path, toy_model):
+    model = toy_model()
+    save_model(tmp_path / "m.npz", _trained(model), {"max_modes": 2},
+               preset={"name": "default", "overrides": {"max_modes": 2}})
+    trained, params = load_model(tmp_path / "m.npz")
+    assert params == {"max_modes": 2} and trained.appearance is None
+    assert trained.full_model is trained.model and trained.viewpoint_kappa == 3.0
+    assert np.array_equal(trained.model.xy, model.xy) and trained.model.instance_names == ("toy",)
+
+
+def test_model_file_errors(tmp_path, toy_model):
+    with pytest.raises(FileNotFoundError, match="model file not found"):
+        load_model(tmp_path / "none.npz")
+    junk = tmp_path / "junk.npz"
+    junk.write_bytes(b"hello")
+    with pytest.raises(ValueError, match="junk.npz: not a posevote model file"):
+        load_model(junk)
+    save_model(tmp_path / "m.npz", _trained(toy_model()), {})
+    data = (tmp_path / "m.npz").read_bytes()
+    (tmp_path / "cut.npz").write_bytes(data[: len(data) // 2])
+    with pytest.raises(ValueError, match="cut.npz: not a posevote model file"):
+        load_model(tmp_path / "cut.npz")
+    np.savez(tmp_path / "foreign.npz", a=np.zeros(3))
+    with pytest.raises(ValueError, match="foreign.npz: not a posevote model file"):
+        load_model(tmp_path / "foreign.npz")
+
+
+@pytest.mark.parametrize(("version", "message"), [
+    (FORMAT_VERSION + 1, "is newer than this posevote reads"),
+    (FORMAT_VERSION - 1, "older posevote .* retrain"),
+    ("3", "is not an integer"),
+])
+def test_other_format_versions_are_refused(tmp_path, toy_model, version, message):
+    save_model(tmp_path / "m.npz", _trained(toy_model()), {})
+    _rewrite(tmp_path / "m.npz", tmp_path / "v.npz", header={"version": version})
+    with pytest.raises(ValueError, match=f"v.npz: .*{message}"):
+        load_model(tmp_path / "v.npz")
+
+
+def test_bad_arrays_and_header_values_are_refused(tmp_path, toy_model):
+    model = toy_model()
+    save_model(tmp_path / "m.npz", _trained(model), {})
+    xy = model.xy.copy()
+    xy[0, 0] = np.nan
+    cases = [({"xy": xy}, "array xy has values that are not finite"),
+             ({"view_box": np.zeros_like(model.view_box)}, "view_box has boxes of zero size"),
+             ({"header": {"instance_size": [1.0, -2.0]}}, r"instance_size"),
+             ({"header": {"extra": {"viewpoint_kappa": "x"}}}, "viewpoint_kappa")]
+    for changes, message in cases:
+        _rewrite(tmp_path / "m.npz", tmp_path / "bad.npz", **changes)
+        with pytest.raises(ValueError, match=f"bad.npz: corrupt model file .*{message}"):
+            load_model(tmp_path / "bad.npz")
+
+
+def test_appearance_arrays_round_trip_and_are_checked(tmp_path, toy_model):
+    model = toy_model()
+    window = (48, 48)
+    from posevote.features.appearance import descriptor_length
+
+    length = descriptor_length(window)
+    look = AppearanceModel(window=window, descriptors=np.ones((3, length), np.float32),
+                           objectness=np.zeros(length + 1), regressor=np.zeros((8, 4, length + 1)))
+    save_model(tmp_path / "m.npz", _trained(model, appearance=look), {})
+    trained, _ = load_model(tmp_path / "m.npz")
+    assert trained.appearance is not None and trained.appearance.window == window
+    np.testing.assert_array_equal(trained.appearance.descriptors, look.descriptors)
+    for name, bad in (("box_regressor", np.zeros((8, 3, 5))),
+                      ("box_regressor", np.full((8, 4, length + 1), np.nan)),
+                      ("objectness", np.zeros(3)),
+                      ("view_descriptor", np.ones((2, length), np.float32))):
+        _rewrite(tmp_path / "m.npz", tmp_path / "bad.npz", **{name: bad})
+        with pytest.raises(ValueError, match=f"bad.npz: corrupt model file \\({name}"):
+            load_model(tmp_path / "bad.npz")

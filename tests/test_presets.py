@@ -1,0 +1,36 @@
+"""Named presets: each builds a valid estimator and says where it was chosen."""
+
+from __future__ import annotations
+
+import pytest
+
+from posevote import PoseEstimator
+from posevote.presets import PRESETS, get_preset
+
+
+def test_the_four_presets_and_their_provenance():
+    assert set(PRESETS) >= {"default", "cluttered", "turntable", "category"}
+    for name, preset in PRESETS.items():
+        assert preset.name == name and preset.description and preset.chosen_on
+        assert preset.script.startswith("benchmarks/") and preset.measured
+        est = PoseEstimator.from_preset(name)
+        est._validate_params()
+        assert est.nearest_preset() == {"name": name, "overrides": {}}
+
+
+def test_presets_differ_where_they_should():
+    default, clutter = PRESETS["default"], PoseEstimator.from_preset("cluttered")
+    assert default.params == {} and clutter.local_refinement
+    assert clutter.search.inplane_range_deg == (-30.0, 30.0)
+    turntable = PoseEstimator.from_preset("turntable")
+    assert turntable.morph_views and turntable.search.viewpoint_subdivisions == 2
+    category = PoseEstimator.from_preset("category")
+    assert category.appearance is not None and category.recognition.search is False
+
+
+def test_overrides_and_unknown_names():
+    est = PoseEstimator.from_preset("category", appearance=None, search__scale_steps=4)
+    assert est.appearance is None and est.search.scale_steps == 4
+    assert est.search.viewpoint_step_deg == 10.0
+    with pytest.raises(ValueError, match="unknown preset 'nope'"):
+        get_preset("nope")

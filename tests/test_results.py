@@ -1,0 +1,31 @@
+"""Result types: frozen hypotheses in radians with degree properties, JSON-ready estimates."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+
+from posevote.results import Hypothesis, PoseEstimate
+
+
+def _hyp(**kw):
+    base = dict(azimuth=np.radians(30.0), elevation=0.0, inplane=np.radians(-5.0), scale=1.1,
+                position=(10.0, 20.0), box=(0.0, 0.0, 21.0, 41.0), score=0.5, refined=True)
+    return Hypothesis(**{**base, **kw})
+
+
+def test_degrees_at_the_edges_and_frozen():
+    h = _hyp()
+    assert h.azimuth_deg == pytest.approx(30.0) and h.inplane_deg == pytest.approx(-5.0)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        h.score = 1.0  # type: ignore[misc]
+
+
+def test_estimate_serialises_to_json():
+    h = _hyp()
+    est = PoseEstimate(found=True, best=h, modes=(h,), n_test_features=12, seconds=0.01)
+    payload = json.loads(json.dumps(est.to_dict()))
+    assert payload["found"] is True and len(payload["modes"]) == 1
