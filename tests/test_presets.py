@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from posevote import PoseEstimator
-from posevote.presets import PRESETS, get_preset
+from posevote.presets import PRESETS, get_preset, nearest_preset
 
 
 def test_the_four_presets_and_their_provenance():
@@ -14,8 +14,9 @@ def test_the_four_presets_and_their_provenance():
         assert preset.name == name and preset.description and preset.chosen_on
         assert preset.script.startswith("benchmarks/") and preset.measured
         est = PoseEstimator.from_preset(name)
-        est._validate_params()
-        assert est.nearest_preset() == {"name": name, "overrides": {}}
+        defaults = PoseEstimator().get_params(deep=False)
+        assert nearest_preset(est.get_params(deep=False), defaults) == {"name": name,
+                                                                        "overrides": {}}
 
 
 def test_presets_differ_where_they_should():
@@ -34,3 +35,10 @@ def test_overrides_and_unknown_names():
     assert est.search.viewpoint_step_deg == 10.0
     with pytest.raises(ValueError, match="unknown preset 'nope'"):
         get_preset("nope")
+
+
+def test_the_nearest_preset_names_what_differs():
+    est = PoseEstimator.from_preset("turntable", max_modes=2, search__scale_steps=7)
+    found = nearest_preset(est.get_params(deep=False), PoseEstimator().get_params(deep=False))
+    assert found["name"] == "turntable" and found["overrides"]["max_modes"] == 2
+    assert found["overrides"]["search"]["scale_steps"] == 7

@@ -80,3 +80,37 @@ class Options:
         values = {k: (tuple(v) if isinstance(v, list) else v) for k, v in data.items()}
         return cls(**values)
 
+
+
+def params_to_json(params: dict[str, Any]) -> dict[str, Any]:
+    """Parameters as JSON-ready values: option groups (and other dataclasses) as dicts."""
+    out: dict[str, Any] = {}
+    for name, value in params.items():
+        if isinstance(value, Options):
+            value = value.to_dict()
+        elif dataclasses.is_dataclass(value) and not isinstance(value, type):
+            value = dataclasses.asdict(value)
+        out[name] = value
+    return out
+
+
+def params_from_json(params: dict[str, Any], groups: dict[str, type],
+                     valid: list[str]) -> dict[str, Any]:
+    """The inverse of :func:`params_to_json`: dicts under a group's name become that group.
+
+    Raises
+    ------
+    ValueError
+        On a name not in ``valid``, or a group's unknown or bad field.
+    """
+    unknown = sorted(set(params) - set(valid))
+    if unknown:
+        raise ValueError(f"unknown parameter(s) {', '.join(unknown)}")
+    out: dict[str, Any] = {}
+    for name, value in params.items():
+        cls = groups.get(name)
+        if cls is not None and isinstance(value, dict):
+            value = cls.from_dict(value, where=f"{name}: ") if issubclass(cls, Options) \
+                else cls(**value)
+        out[name] = value
+    return out

@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from posevote._options import Options
+from posevote._options import Options, params_from_json, params_to_json
 from posevote.data.images import as_gray_float, read_image
 from posevote.features.edges import EdgeFeatures, EdgeOptions, extract_edges
 from posevote.inference.search import (
@@ -37,6 +37,7 @@ from posevote.model.density import PoseModel
 from posevote.model.kernels import KernelOptions
 from posevote.model.pruning import PruningPreset, resolve_preset
 from posevote.model.training import TrainedModel, train_model
+from posevote.presets import get_preset, nearest_preset
 from posevote.refinement.appearance import appearance_refine
 from posevote.refinement.fitting import FIT_RADIUS_STEPS, find_modes, refine_mode
 from posevote.refinement.instance import RecognitionOptions, recognize
@@ -66,12 +67,6 @@ def __getattr__(name: str) -> Any:
     if name == "NotFittedError":
         return _not_fitted_error()
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
-def _load(image: ImageLike, *, name: str) -> NDArray[np.float64]:
-    if isinstance(image, (str, Path)):
-        return read_image(image)
-    return as_gray_float(image, name=name)
 
 
 class PoseEstimator:
@@ -150,8 +145,6 @@ class PoseEstimator:
         ``overrides`` are :meth:`set_params` keys: ``search=SearchOptions(...)``
         replaces a group, ``search__scale_steps=5`` one of its fields.
         """
-        from posevote.presets import get_preset
-
         return cls(**get_preset(name).params).set_params(**overrides)
 
     # -- scikit-learn's parameter contract ------------------------------------------
@@ -188,9 +181,8 @@ class PoseEstimator:
                 continue
             group = getattr(self, name)
             if not isinstance(group, Options):
-                raise ValueError(f"{key!r}: {name} is {group!r}; set {name}="
-                                 f"{OPTION_GROUPS[name].__name__ if name in OPTION_GROUPS else '...'}"
-                                 "(...) first")
+                kind = OPTION_GROUPS[name].__name__ if name in OPTION_GROUPS else "..."
+                raise ValueError(f"{key!r}: {name} is {group!r}; set {name}={kind}(...) first")
             fields = [f.name for f in dataclasses.fields(group)]
             if field not in fields:
                 raise ValueError(f"unknown parameter {key!r}; {type(group).__name__} has "
@@ -297,25 +289,15 @@ class PoseEstimator:
                            n_threads=self.n_jobs)
 
     def _read(self, image: ImageLike) -> tuple[EdgeFeatures, NDArray[np.float64]]:
-        img = _load(image, name=str(image) if isinstance(image, (str, Path)) else "image")
+        img = read_image(image) if isinstance(image, (str, Path)) else \
+            as_gray_float(image, name="image")
         return extract_edges(img, self.edges, training=False), img
 
     def probe(self, image: ImageLike, *, progress: Callable[[int], None] | None = None
               ) -> tuple[ProbeSet, EdgeFeatures]:
-        """The probes of p(w) for an image (Fig. 2), before refinement.
+        """The probes of p(w) for an image (Fig. 2), before refinement, and its edge features.
 
-        Parameters
-        ----------
-        image : path or ndarray
-            The test image.
-        progress : callable, optional
-            Called with 1 after each probed viewpoint.
-
-        Returns
-        -------
-        probes : ProbeSet
-        features : EdgeFeatures
-            The test image's edge features.
+        ``progress`` is called with 1 after each probed viewpoint.
         """
         model = self._check_fitted()
         self._validate_params()
@@ -386,24 +368,9 @@ class PoseEstimator:
                                       viewpoint_kappa=self.viewpoint_kappa_,
                                       appearance=getattr(self, "appearance_model_", None),
                                       pruning=self.pruning_),
-                   params_to_json(self.get_params(deep=False)), preset=self.nearest_preset())
-
-    def nearest_preset(self) -> dict[str, Any]:
-        """The preset these parameters differ least from, and what differs (JSON-ready).
-
-        Recorded in the model file's header: ``{"name": ..., "overrides": {...}}``.
-        """
-        from posevote.presets import PRESETS
-
-        mine = self.get_params(deep=False)
-        best: tuple[int, str, dict[str, Any]] | None = None
-        for name, preset in PRESETS.items():
-            theirs = type(self)(**preset.params).get_params(deep=False)
-            diff = {k: v for k, v in mine.items() if theirs[k] != v}
-            if best is None or len(diff) < best[0]:
-                best = (len(diff), name, diff)
-        assert best is not None
-        return {"name": best[1], "overrides": params_to_json(best[2])}
+                   params_to_json(self.get_params(deep=False)),
+                   preset=nearest_preset(self.get_params(deep=False),
+                                         type(self)().get_params(deep=False)))
 
     @classmethod
     def load(cls, path: str | Path) -> PoseEstimator:
@@ -418,37 +385,10 @@ class PoseEstimator:
 
         trained, params = load_model(path)
         try:
-            est = cls(**params_from_json(params))
+            groups = {**OPTION_GROUPS, "prune": PruningPreset}
+            est = cls(**params_from_json(params, groups, cls._param_names()))
             est._validate_params()
         except (TypeError, ValueError) as exc:
             raise ValueError(f"{path}: bad parameters in the model file ({exc})") from None
         est._set_trained(trained)
         return est
-
-
-def params_to_json(params: dict[str, Any]) -> dict[str, Any]:
-    """Estimator parameters as JSON-ready values (groups and pruning knobs as dicts)."""
-    out: dict[str, Any] = {}
-    for name, value in params.items():
-        if isinstance(value, Options):
-            value = value.to_dict()
-        elif isinstance(value, PruningPreset):
-            value = dataclasses.asdict(value)
-        out[name] = value
-    return out
-
-
-def params_from_json(params: dict[str, Any]) -> dict[str, Any]:
-    """The inverse of :func:`params_to_json` (raises ``ValueError`` on unknown names)."""
-    valid = PoseEstimator._param_names()
-    unknown = sorted(set(params) - set(valid))
-    if unknown:
-        raise ValueError(f"unknown parameter(s) {', '.join(unknown)}")
-    out: dict[str, Any] = {}
-    for name, value in params.items():
-        if name in OPTION_GROUPS and value is not None:
-            value = OPTION_GROUPS[name].from_dict(value, where=f"{name}: ")
-        elif name == "prune" and isinstance(value, dict):
-            value = PruningPreset(**value)
-        out[name] = value
-    return out

@@ -119,3 +119,31 @@ def get_preset(name: str) -> Preset:
     if not isinstance(name, str) or name not in PRESETS:
         raise ValueError(f"unknown preset {name!r}; choose one of {', '.join(PRESETS)}")
     return PRESETS[name]
+
+
+def nearest_preset(params: dict[str, Any], defaults: dict[str, Any]) -> dict[str, Any]:
+    """The preset that ``params`` differ least from, and what differs (JSON-ready).
+
+    Parameters
+    ----------
+    params : dict
+        An estimator's parameters (``get_params(deep=False)``).
+    defaults : dict
+        The estimator's defaults, which a preset's parameters are laid over.
+
+    Returns
+    -------
+    dict
+        ``{"name": ..., "overrides": {...}}``, as recorded in a model file's header.
+    """
+    from posevote._options import params_to_json
+
+    best: tuple[int, str, dict[str, Any]] | None = None
+    for name, preset in PRESETS.items():
+        theirs = {**defaults, **preset.params}
+        diff = {k: v for k, v in params.items() if theirs.get(k) != v}
+        if best is None or len(diff) < best[0]:
+            best = (len(diff), name, diff)
+    if best is None:
+        raise ValueError("no presets defined")
+    return {"name": best[1], "overrides": params_to_json(best[2])}

@@ -72,7 +72,8 @@ def test_every_row_builds_an_estimator_from_its_protocols_preset(coil_dir, epfl_
         proto = load_protocol(name, coil_dir.parent)
         assert proto.main_row in {r.name for r in proto.rows}
         for row in proto.rows:
-            PoseEstimator.from_preset(proto.preset, **row.params)._validate_params()
+            est = PoseEstimator.from_preset(proto.preset, **row.params)
+            assert est.get_params(deep=False).keys() == PoseEstimator().get_params(deep=False).keys()
     # The paper's EPFL row runs edges alone; the preset's row adds the appearance stages.
     cv = load_protocol("epfl-cv", coil_dir.parent)
     paper, preset = (PoseEstimator.from_preset(cv.preset, **r.params) for r in cv.rows[:2])

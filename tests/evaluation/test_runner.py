@@ -138,3 +138,9 @@ def test_processes_give_the_same_records_and_leave_opencv_threads(tiny_protocol,
             for d in ("one", "two"))
     assert [r["estimate_deg"] for r in a] == [r["estimate_deg"] for r in b]
     assert one["rows"][0]["overall"]["median"] == two["rows"][0]["overall"]["median"]
+
+
+def test_the_library_prints_nothing(tiny_protocol, tmp_path, capsys):
+    run_protocol(tiny_protocol, tmp_path / "quiet")
+    captured = capsys.readouterr()
+    assert captured.out == "" and captured.err == ""

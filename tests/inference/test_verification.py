@@ -113,6 +113,7 @@ def test_no_candidate_inside_the_image_gives_none(draw):
 
 def test_verify_searches_again_inside_the_winners_box(draw, tmp_path):
     from posevote import PoseEstimator
+    from posevote.features.edges import extract_edges
     from posevote.inference.search import search_maps
     from posevote.inference.verification import verify
     from posevote.model.appearance import AppearanceOptions
@@ -124,7 +125,8 @@ def test_verify_searches_again_inside_the_winners_box(draw, tmp_path):
     scene = np.zeros((200, 300))
     scene[36:164, 20:148] = draw(np.radians(60.0))
     scene[36:164, 160:288] = np.random.default_rng(0).random((128, 128)) > 0.7
-    feats, img = est._read(scene)
+    img = scene
+    feats = extract_edges(img, est.edges, training=False)
     setup = est.setup()
     maps = search_maps(feats, img.shape, est.model_, setup)
     probes = est.probe(scene)[0]
