@@ -10,13 +10,15 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
 
 class Options:
     """Mixin of the option groups: validation helpers, a repr of what differs, JSON."""
+
+    __dataclass_fields__: ClassVar[dict[str, dataclasses.Field[Any]]]
 
     def _fail(self, name: str, expected: str, value: Any) -> None:
         raise ValueError(f"{type(self).__name__}.{name} must be {expected}, got {value!r}")

@@ -34,8 +34,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.cluster.hierarchy import fcluster, linkage
-from scipy.spatial.distance import pdist
 
 from posevote.model.density import PoseModel
 
@@ -127,6 +125,10 @@ def cluster_features(pose: NDArray[np.float64], appearance: NDArray[np.float64],
     ndarray of int, shape (M,)
         Cluster label of every feature, ``0 .. n_clusters - 1``.
     """
+    # imported where used, so that a command-line start does not pay for it
+    from scipy.cluster.hierarchy import fcluster, linkage
+    from scipy.spatial.distance import pdist
+
     m = len(pose)
     labels = np.zeros(m, dtype=np.int64)
     next_label = 0

@@ -167,7 +167,7 @@ def train_model(images: Sequence[str | Path | NDArray], poses: ArrayLike, *,
                              "or lower EdgeOptions.thresholds")
         feats.append(f)
         if collector is not None:
-            collector.add(img, box, float(pose_arr[i, 0]))
+            collector.add(img, box.tolist(), float(pose_arr[i, 0]))
         if crops is not None:
             crops.add(img, box)
         centres[i] = box_centre(box)
