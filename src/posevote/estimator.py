@@ -268,8 +268,8 @@ class PoseEstimator:
     def _check_fitted(self) -> PoseModel:
         model = getattr(self, "model_", None)
         if model is None:
-            raise _not_fitted_error()("this PoseEstimator is not fitted yet; call fit() or load() "
-                                 "first")
+            raise _not_fitted_error()("this PoseEstimator is not fitted yet; call fit() or "
+                                      "load() first")
         return model
 
     def _appearance_model(self) -> AppearanceModel:

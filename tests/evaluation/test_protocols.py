@@ -21,8 +21,8 @@ def test_coil_category_splits(coil_dir):
     assert not cars.half_turn and proto.splits[1].half_turn
     names = [r.name for r in proto.rows]
     assert names[-3:] == ["refined with instance model (paper: near the category's mode)",
-                          "refined with instance model, each instance searching on its own",
-                          "refined with instance model, own search + morphing"]
+                          "refined with instance model + instance search",
+                          "refined with instance model + instance search + morphing"]
     assert proto.preset == "default" and proto.main_row == names[-2]
     assert proto.rows[-1].params is not None and proto.rows[-1].params["morph_views"]
     assert proto.rows[-3].params["recognition"].search is False
@@ -71,6 +71,8 @@ def test_every_row_builds_an_estimator_from_its_protocols_preset(coil_dir, epfl_
     for name in ("coil-category", "epfl-single", "epfl-cv"):
         proto = load_protocol(name, coil_dir.parent)
         assert proto.main_row in {r.name for r in proto.rows}
+        # --rows takes a comma-separated list: a row's name has no comma
+        assert not [r.name for r in proto.rows if "," in r.name]
         for row in proto.rows:
             est = PoseEstimator.from_preset(proto.preset, **row.params)
             assert est.get_params(deep=False).keys() == PoseEstimator().get_params(deep=False).keys()

@@ -122,11 +122,11 @@ _ABLATION = (
         params={"prune": "moderate", "recognition": RecognitionOptions(search=False)},
         note="the paper's Sec. III-B: instances scored at the category's modes, the winner "
              "re-estimates near its mode"),
-    Row(name="refined with instance model, each instance searching on its own",
+    Row(name="refined with instance model + instance search",
         params={"prune": "moderate"},
         note="beyond the paper: every instance's model estimates the pose over all viewpoints "
              "and is judged at its own estimate (RecognitionOptions.search)"),
-    Row(name="refined with instance model, own search + morphing",
+    Row(name="refined with instance model + instance search + morphing",
         params={"prune": "moderate", "morph_views": True, "search__viewpoint_subdivisions": 2},
         note="beyond the paper: features morphed between training views, two probes per gap"),
 )
@@ -136,7 +136,7 @@ _EPFL_ROWS = (
     Row(name="paper: weights + fitting + instance model", params={"appearance": None},
         note="edges alone: the category preset's search and recognition without its "
              "appearance stages"),
-    Row(name="category preset: + HOG verification, box regression, nearest view", params={},
+    Row(name="category preset: + HOG verification + box regression + nearest view", params={},
         note=f"beyond the paper: {_APPEARANCE}"),
     Row(name="category preset + moderate pruning", params={"prune": "moderate"}),
     Row(name="category preset + aggressive pruning", params={"prune": "aggressive"}),

@@ -167,13 +167,14 @@ def search_sigma(model: PoseModel, setup: SearchSetup) -> float:
     inplanes, scales = setup.options.grid()
     r = float(np.sqrt(np.mean(np.sum(model.xy**2, axis=1)))) * float(np.max(scales))
     d_alpha = float(np.median(np.diff(inplanes))) if len(inplanes) > 1 else 0.0
-    d_log_s = float(np.median(np.diff(np.log(scales)))) if len(scales) > 1 else 0.0
+    d_log_s = setup.options.scale_step()
     return float(np.sqrt(setup.position_sigma**2 + (r * d_alpha / 2.0) ** 2
                          + (r * d_log_s / 2.0) ** 2))
 
 
 def image_maps(features: EdgeFeatures, shape: tuple[int, int], setup: SearchSetup, *,
-              sigma: float | None = None, scale: float = 1.0, search: bool = False) -> TestMaps:
+               sigma: float | None = None, scale: float = 1.0, search: bool = False
+               ) -> TestMaps:
     """The test image tabulated at kernel width ``sigma`` (default: the narrow one).
 
     ``density_cap`` applies to the search's maps only: the narrow maps of
@@ -191,7 +192,7 @@ def scale_maps(features: EdgeFeatures, shape: tuple[int, int], setup: SearchSetu
                sigma: float | None = None, search: bool = False) -> list[TestMaps]:
     """One set of maps per searched scale, the features divided by it (object units)."""
     return [image_maps(*scaled_features(features, shape, float(s)), setup, sigma=sigma,
-                      scale=float(s), search=search) for s in setup.options.grid()[1]]
+                       scale=float(s), search=search) for s in setup.options.grid()[1]]
 
 
 def search_maps(features: EdgeFeatures, shape: tuple[int, int], model: PoseModel,
