@@ -39,7 +39,7 @@ def _parse_params(items: tuple[str, ...]) -> dict[str, Any]:
     from posevote.estimator import OPTION_GROUPS, PoseEstimator
 
     params: dict[str, Any] = {}
-    top = PoseEstimator._param_names()
+    top = list(PoseEstimator().get_params(deep=False))
     for item in items:
         name, sep, value = item.partition("=")
         if not sep:
