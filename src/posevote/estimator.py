@@ -20,7 +20,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from posevote._options import Options, params_from_json, params_to_json
-from posevote.data.images import as_gray_float, read_image
+from posevote.data.images import load_image
 from posevote.features.edges import EdgeFeatures, EdgeOptions, extract_edges
 from posevote.inference.search import (
     ProbeSet,
@@ -289,8 +289,7 @@ class PoseEstimator:
                            n_threads=self.n_jobs)
 
     def _read(self, image: ImageLike) -> tuple[EdgeFeatures, NDArray[np.float64]]:
-        img = read_image(image) if isinstance(image, (str, Path)) else \
-            as_gray_float(image, name="image")
+        img = load_image(image)
         return extract_edges(img, self.edges, training=False), img
 
     def probe(self, image: ImageLike, *, progress: Callable[[int], None] | None = None

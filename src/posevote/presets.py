@@ -12,6 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
+from posevote._options import params_to_json
 from posevote.features.edges import EdgeOptions
 from posevote.inference.search import SearchOptions
 from posevote.model.appearance import AppearanceOptions
@@ -136,8 +137,6 @@ def nearest_preset(params: dict[str, Any], defaults: dict[str, Any]) -> dict[str
     dict
         ``{"name": ..., "overrides": {...}}``, as recorded in a model file's header.
     """
-    from posevote._options import params_to_json
-
     best: tuple[int, str, dict[str, Any]] | None = None
     for name, preset in PRESETS.items():
         theirs = {**defaults, **preset.params}

@@ -56,3 +56,16 @@ def test_read_mask(tmp_path):
     cv2.imwrite(str(tmp_path / "e.png"), np.zeros((6, 6), np.uint8))
     with pytest.raises(ValueError, match="mask is empty"):
         read_mask(tmp_path / "e.png")
+
+
+def test_load_image_takes_a_path_or_an_array(tmp_path):
+    import cv2
+
+    from posevote.data.images import load_image
+
+    grey = np.zeros((6, 8), np.uint8)
+    grey[2, 3] = 255
+    cv2.imwrite(str(tmp_path / "g.png"), grey)
+    np.testing.assert_allclose(load_image(tmp_path / "g.png"), load_image(grey))
+    with pytest.raises(ValueError, match="frame"):
+        load_image(np.zeros((2, 2, 7)), name="frame")

@@ -106,3 +106,13 @@ def read_mask(path: str | Path) -> NDArray[np.bool_]:
     if not mask.any():
         raise ValueError(f"{path}: the mask is empty (no pixel marks the object)")
     return mask
+
+
+def load_image(image: str | Path | NDArray, *, name: str = "image") -> NDArray[np.float64]:
+    """A grey float image from a path (:func:`read_image`) or an array (:func:`as_gray_float`).
+
+    ``name`` labels an array in error messages; a path labels itself.
+    """
+    if isinstance(image, (str, Path)):
+        return read_image(image)
+    return as_gray_float(image, name=name)

@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from posevote.data.images import as_gray_float, read_image, read_mask
+from posevote.data.images import load_image, read_mask
 from posevote.features.edges import EdgeOptions, box_mask, extract_edges
 from posevote.geometry import box_centre
 from posevote.model.appearance import AppearanceCollector, AppearanceModel
@@ -151,8 +151,7 @@ def train_model(images: Sequence[str | Path | NDArray], poses: ArrayLike, *,
     crops = ViewCrops() if morph else None
     for i, image in enumerate(images):
         label = str(image) if isinstance(image, (str, Path)) else f"images[{i}]"
-        img = read_image(image) if isinstance(image, (str, Path)) else \
-            as_gray_float(image, name=label)
+        img = load_image(image, name=label)
         mask = _read_mask(label, mask_list[i], img.shape)
         box = _object_box(label, img, box_arr[i], mask)
         region = box_mask(img.shape, box)
