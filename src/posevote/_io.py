@@ -3,11 +3,15 @@
 The temporary file is given the mode the file would have had if written
 directly: an overwritten file keeps its mode, a new one gets ``0666`` less
 the process's umask (0644 under umask 022), not ``mkstemp``'s private 0600.
+Its name holds the writing process's id (``.NAME.PID.XXXX.tmp``), so that the
+next write of the same file removes the temporaries of writers that died
+(killed mid-write) and leaves those of live ones.
 """
 
 from __future__ import annotations
 
 import contextlib
+import glob
 import os
 import stat
 import tempfile
@@ -30,6 +34,32 @@ def _target_mode(path: Path) -> int:
         return 0o666 & ~_umask()
 
 
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:   # another user's live process
+        return True
+    return True
+
+
+def _clean_stale(parent: Path, prefix: str, suffix: str) -> None:
+    """Remove the temporaries ``prefix PID. ... suffix`` in ``parent`` whose writer is gone."""
+    for tmp in parent.glob(f"{glob.escape(prefix)}*{glob.escape(suffix)}"):
+        pid_text = tmp.name[len(prefix):].split(".", 1)[0]
+        if pid_text.isdigit() and int(pid_text) != os.getpid() and not _alive(int(pid_text)):
+            with contextlib.suppress(OSError):
+                tmp.unlink()
+
+
+def _temporary(path: Path, suffix: str) -> tuple[int, str]:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    prefix = f".{path.name}."
+    _clean_stale(path.parent, prefix, suffix)
+    return tempfile.mkstemp(prefix=f"{prefix}{os.getpid()}.", suffix=suffix, dir=path.parent)
+
+
 @contextlib.contextmanager
 def atomic_open(path: str | Path, mode: str = "wb") -> Iterator[IO]:
     """Open a temporary file beside ``path``; rename it onto ``path`` on success.
@@ -37,8 +67,7 @@ def atomic_open(path: str | Path, mode: str = "wb") -> Iterator[IO]:
     On any exception the temporary file is removed and ``path`` is untouched.
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    fd, tmp = _temporary(path, ".tmp")
     try:
         os.chmod(tmp, _target_mode(path))
         with os.fdopen(fd, mode) as fh:
@@ -66,8 +95,7 @@ def atomic_write_with(path: str | Path, writer: Callable[[Path], None]) -> None:
     suffix of ``path`` so that the format is chosen the same way.
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent)
+    fd, tmp = _temporary(path, f".tmp{path.suffix}")
     os.close(fd)
     try:
         os.chmod(tmp, _target_mode(path))

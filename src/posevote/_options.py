@@ -42,20 +42,26 @@ class Options:
             kind = "an integer" if integer else "a finite number"
             bounds = f"{lo}{low:g}, {high:g}{hi}"
             self._fail(name, f"{kind} in {bounds}" + (" or None" if optional else ""), value)
+        # One type per field whatever the source (an int from JSON, a numpy scalar).
+        object.__setattr__(self, name, int(value) if integer else float(value))
 
     def _flag(self, name: str) -> None:
         if not isinstance(getattr(self, name), (bool, np.bool_)):
             self._fail(name, "True or False", getattr(self, name))
+        object.__setattr__(self, name, bool(getattr(self, name)))
 
     def _pair(self, name: str) -> tuple[float, float]:
         """Check field ``name``: a pair of finite numbers, low <= high; returns it."""
         value = getattr(self, name)
+        if isinstance(value, (str, bytes, dict)):
+            self._fail(name, "a pair of numbers (low, high)", value)
         try:
             low, high = (float(v) for v in value)
         except (TypeError, ValueError):
             self._fail(name, "a pair of numbers (low, high)", value)
         if not (math.isfinite(low) and math.isfinite(high) and low <= high):
             self._fail(name, "a pair of finite numbers with low <= high", value)
+        object.__setattr__(self, name, (low, high))
         return low, high
 
     def __repr__(self) -> str:

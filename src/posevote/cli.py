@@ -5,7 +5,9 @@ Exit codes
 0  success
 1  bad input: a missing, unreadable or malformed file or value (the message,
    on stderr as ``Error: ...``, names the file, row or argument)
-2  usage error: unknown option or missing argument
+2  usage error: unknown option, missing argument, an option value outside
+   its range, or an output path that names a folder (or a file, for a
+   results folder)
 3  ``estimate`` found no object (no edges, or no mode above ``--min-score``)
 """
 
@@ -13,6 +15,7 @@ from __future__ import annotations
 
 import ast
 import json
+import math
 import sys
 from pathlib import Path
 from typing import Any
@@ -30,6 +33,42 @@ class InputError(click.ClickException):
     """A bad file or value: printed as ``Error: ...``, exit code 1."""
 
     exit_code = EXIT_INPUT
+
+
+#: Suffixes the image outputs (overlays, weight plots) may be written with.
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
+
+
+def _output_file(path: Path, option: str, *, suffixes: tuple[str, ...] | None = None) -> Path:
+    """Refuse an output file path that names a folder or has the wrong suffix."""
+    if path.is_dir():
+        raise click.BadParameter(f"{path} is a folder; give a file name", param_hint=option)
+    if suffixes is not None and path.suffix.lower() not in suffixes:
+        raise click.BadParameter(f"{path}: the file name must end in one of "
+                                 f"{', '.join(suffixes)}", param_hint=option)
+    if path.parent.exists() and not path.parent.is_dir():
+        raise click.BadParameter(f"{path.parent} is a file, not a folder", param_hint=option)
+    return path
+
+
+def _output_folder(path: Path, option: str) -> Path:
+    """Refuse an output folder path that names a file."""
+    if path.exists() and not path.is_dir():
+        raise click.BadParameter(f"{path} is a file; give a folder", param_hint=option)
+    return path
+
+
+def _input_error(exc: BaseException) -> InputError:
+    """The ``Error:`` message for a bad input, naming the file where the exception knows it."""
+    if isinstance(exc, OSError) and not isinstance(exc, FileNotFoundError) and exc.filename:
+        return InputError(f"{exc.filename}: {exc.strerror or exc}")
+    if isinstance(exc, MemoryError):
+        return InputError("out of memory; downscale the image or use a coarser search")
+    return InputError(str(exc))
+
+
+#: What the commands turn into ``Error:`` messages (exit 1) rather than tracebacks.
+BAD_INPUT = (OSError, ValueError, TypeError, MemoryError)
 
 
 def _parse_params(items: tuple[str, ...]) -> dict[str, Any]:
@@ -102,8 +141,11 @@ def cli() -> None:
               show_default=True, help="SOURCE is a folder with poses.csv, COIL-100 or EPFL tripod-seq.")
 @click.option("--objects", help="COIL object numbers, e.g. 6,8,23.")
 @click.option("--cars", help="EPFL car numbers, e.g. 1-5.")
-@click.option("--azimuth-step-deg", type=float, default=None,
-              help="COIL: train on the views at multiples of this step (default: all).")
+@click.option("--azimuth-step-deg", type=click.FloatRange(0, 180, min_open=True), default=None,
+              help="COIL: train on the views at multiples of this step, a multiple of 5 "
+                   "(default: all).")
+@click.option("--allow-outside-paths", is_flag=True,
+              help="Let poses.csv name images outside SOURCE (absolute or ../ paths).")
 @click.option("--preset", default="default", show_default=True,
               help="Named settings to start from (see `posevote presets`).")
 @click.option("--no-weights", is_flag=True, help="Store the model with weights switched off.")
@@ -113,8 +155,8 @@ def cli() -> None:
               help="Override a preset value (repeatable), e.g. kernel.position_sigma=2.5 or "
                    "appearance=None.")
 def train(source: Path, output: Path, layout: str, objects: str | None, cars: str | None,
-          azimuth_step_deg: float | None, preset: str, no_weights: bool, prune: str,
-          params: tuple[str, ...]) -> None:
+          azimuth_step_deg: float | None, allow_outside_paths: bool, preset: str,
+          no_weights: bool, prune: str, params: tuple[str, ...]) -> None:
     """Train a model from pose-annotated images in SOURCE.
 
     Several instances (an ``instance`` column, several COIL objects or EPFL
@@ -125,6 +167,18 @@ def train(source: Path, output: Path, layout: str, objects: str | None, cars: st
     from posevote.data import read_coil, read_epfl, read_poses_csv
     from posevote.estimator import PoseEstimator
 
+    _output_file(output, "-o")
+    for value, option, wanted in ((objects, "--objects", "coil"), (cars, "--cars", "epfl"),
+                                  (azimuth_step_deg, "--azimuth-step-deg", "coil")):
+        if value is not None and layout != wanted:
+            raise click.BadParameter(f"applies to --layout {wanted} only", param_hint=option)
+    if allow_outside_paths and layout != "csv":
+        raise click.BadParameter("applies to --layout csv only", param_hint="--allow-outside-paths")
+    if azimuth_step_deg is not None and not (
+            math.isfinite(azimuth_step_deg)
+            and abs(azimuth_step_deg / 5 - round(azimuth_step_deg / 5)) < 1e-9):
+        raise click.BadParameter(f"{azimuth_step_deg:g}: COIL-100 has a view every 5 degrees; "
+                                 "give a multiple of 5", param_hint="--azimuth-step-deg")
     settings = _parse_params(params)
     if no_weights:
         settings["weights"] = False
@@ -132,7 +186,7 @@ def train(source: Path, output: Path, layout: str, objects: str | None, cars: st
         settings["prune"] = prune
     try:
         if layout == "csv":
-            ts = read_poses_csv(source)
+            ts = read_poses_csv(source, allow_outside_paths=allow_outside_paths)
         elif layout == "coil":
             obj = _int_list(objects, option="--objects")
             if not obj:
@@ -151,8 +205,8 @@ def train(source: Path, output: Path, layout: str, objects: str | None, cars: st
                     instances=list(ts.instances) if ts.instances and all(ts.instances) else None,
                     category=ts.category, progress=bar.update)
         est.save(output)
-    except (FileNotFoundError, ValueError, TypeError) as exc:
-        raise InputError(str(exc)) from None
+    except BAD_INPUT as exc:
+        raise _input_error(exc) from None
     m, full = est.model_, est.full_model_
     kept = "" if m is full else f" (pruned from {full.n_features})"
     click.echo(f"trained on {m.n_views} images ({len(m.instance_names)} instance(s)), "
@@ -180,6 +234,8 @@ def estimate(model: Path, image: Path, as_json: bool, overlay: Path | None,
     from posevote.data import read_image
     from posevote.estimator import PoseEstimator
 
+    if overlay is not None:
+        _output_file(overlay, "--overlay", suffixes=IMAGE_SUFFIXES)
     try:
         est = PoseEstimator.load(model)
         changes: dict[str, Any] = {"n_jobs": threads}
@@ -199,8 +255,8 @@ def estimate(model: Path, image: Path, as_json: bool, overlay: Path | None,
             from posevote.evaluation.plots import draw_overlay, write_png
 
             write_png(overlay, draw_overlay(img, result))
-    except (FileNotFoundError, ValueError, TypeError) as exc:
-        raise InputError(str(exc)) from None
+    except BAD_INPUT as exc:
+        raise _input_error(exc) from None
     if as_json:
         click.echo(json.dumps({"image": str(image), **result.to_dict()}, indent=2))
     elif result.best is not None:
@@ -242,11 +298,12 @@ def weights(model: Path, output: Path, views: int) -> None:
     from posevote.estimator import PoseEstimator
     from posevote.evaluation.plots import plot_weights
 
+    _output_file(output, "-o", suffixes=(".png", ".pdf", ".svg"))
     try:
         est = PoseEstimator.load(model)
         plot_weights(est.model_, output, n_views=views)
-    except (FileNotFoundError, ValueError) as exc:
-        raise InputError(str(exc)) from None
+    except BAD_INPUT as exc:
+        raise _input_error(exc) from None
     click.echo(f"wrote {output}")
 
 
@@ -272,7 +329,7 @@ def evaluate(protocol: str, data: Path, out: Path | None, jobs: int, every: int,
     from posevote.evaluation.report import markdown_table
     from posevote.evaluation.runner import run_protocol
 
-    out = out if out is not None else Path("results") / protocol
+    out = _output_folder(out if out is not None else Path("results") / protocol, "--out")
     try:
         proto = load_protocol(protocol, data)
         row_list = None if rows is None else [r.strip() for r in rows.split(",") if r.strip()]
@@ -292,8 +349,8 @@ def evaluate(protocol: str, data: Path, out: Path | None, jobs: int, every: int,
         finally:
             if bar is not None:
                 bar.close()
-    except (FileNotFoundError, ValueError) as exc:
-        raise InputError(str(exc)) from None
+    except BAD_INPUT as exc:
+        raise _input_error(exc) from None
     click.echo(markdown_table(summary))
     if proto.published:
         click.echo("Published numbers to compare with:\n")
@@ -306,12 +363,16 @@ def evaluate(protocol: str, data: Path, out: Path | None, jobs: int, every: int,
               show_default=True, help="Folder for overlays and results.csv.")
 @click.option("--images", "n_test", type=click.IntRange(1, 500), default=24, show_default=True,
               help="Number of test images.")
-@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--seed", type=click.IntRange(0, 2**32 - 1), default=0, show_default=True)
 def demo(output: Path, n_test: int, seed: int) -> None:
     """Train on a rendered turntable and estimate cluttered, occluded test images."""
     from posevote.demo import run_demo
 
-    summary = run_demo(output, n_test=n_test, seed=seed, log=click.echo)
+    _output_folder(output, "-o")
+    try:
+        summary = run_demo(output, n_test=n_test, seed=seed, log=click.echo)
+    except BAD_INPUT as exc:
+        raise _input_error(exc) from None
     click.echo(f"\nazimuth error over {summary['n']} cluttered, 20%-occluded test images: "
                f"median {summary['median']:.1f} deg, mean {summary['mean']:.1f} deg, "
                f"{summary['under_22_5']:.0f}% under 22.5 deg; position within 5 px: "

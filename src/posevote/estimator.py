@@ -219,7 +219,8 @@ class PoseEstimator:
     def fit(self, images: Sequence[ImageLike], poses: ArrayLike, *,
             boxes: ArrayLike | None = None, masks: Sequence[ImageLike | None] | None = None,
             instances: Sequence[str] | None = None, category: str = "",
-            progress: Callable[[int], None] | None = None) -> PoseEstimator:
+            progress: Callable[[int], None] | None = None, channels: str = "rgb"
+            ) -> PoseEstimator:
         """Learn the model from pose-annotated images (Sec. II-A, II-C).
 
         Parameters
@@ -239,6 +240,8 @@ class PoseEstimator:
             Category name to record.
         progress : callable, optional
             Called with 1 after each image is processed.
+        channels : {"rgb", "bgr"}, optional
+            Colour order of array images (``"bgr"``: from ``cv2.imread``).
 
         Returns
         -------
@@ -247,14 +250,16 @@ class PoseEstimator:
         Raises
         ------
         ValueError
-            On inconsistent lengths, non-finite poses, boxes outside their
-            image, or a training image without edges.
+            On inconsistent lengths, non-finite poses or poses beyond +-4 pi
+            (degrees given as radians), boxes outside their image, or a
+            training image without edges.
         """
         self._validate_params()
         trained = train_model(images, poses, boxes=boxes, masks=masks, instances=instances,
                               category=category, edges=self.edges, kernel=self.kernel,
                               morph=self.morph_views, prune=resolve_preset(self.prune),
-                              appearance=self.appearance is not None, progress=progress)
+                              appearance=self.appearance is not None, progress=progress,
+                              channels=channels)
         self._set_trained(trained)
         return self
 
@@ -288,30 +293,32 @@ class PoseEstimator:
                            viewpoint_kappa=self.viewpoint_kappa_, use_weights=self.weights,
                            n_threads=self.n_jobs)
 
-    def _read(self, image: ImageLike) -> tuple[EdgeFeatures, NDArray[np.float64]]:
-        img = load_image(image)
+    def _read(self, image: ImageLike, channels: str) -> tuple[EdgeFeatures, NDArray[np.float64]]:
+        img = load_image(image, channels=channels)
         return extract_edges(img, self.edges, training=False), img
 
-    def probe(self, image: ImageLike, *, progress: Callable[[int], None] | None = None
-              ) -> tuple[ProbeSet, EdgeFeatures]:
+    def probe(self, image: ImageLike, *, progress: Callable[[int], None] | None = None,
+              channels: str = "rgb") -> tuple[ProbeSet, EdgeFeatures]:
         """The probes of p(w) for an image (Fig. 2), before refinement, and its edge features.
 
-        ``progress`` is called with 1 after each probed viewpoint.
+        ``progress`` is called with 1 after each probed viewpoint; ``channels`` as in estimate().
         """
         model = self._check_fitted()
         self._validate_params()
-        feats, img = self._read(image)
+        feats, img = self._read(image, channels)
         setup = self.setup()
         maps = search_maps(feats, img.shape, model, setup)
         return probe(model, maps, setup, progress=progress), feats
 
-    def estimate(self, image: ImageLike) -> PoseEstimate:
+    def estimate(self, image: ImageLike, *, channels: str = "rgb") -> PoseEstimate:
         """Find the object and estimate its continuous pose (Sec. II-B).
 
         Parameters
         ----------
         image : path or ndarray
-            The test image: grey, RGB or RGBA; 8-bit, 16-bit or float.
+            The test image: grey, RGB or RGBA; 8-bit, 16-bit or float in [0, 1].
+        channels : {"rgb", "bgr"}, optional
+            Colour order of an array (``"bgr"``: from ``cv2.imread``).
 
         Returns
         -------
@@ -322,7 +329,7 @@ class PoseEstimator:
         start = time.perf_counter()
         model = self._check_fitted()
         self._validate_params()
-        feats, img = self._read(image)
+        feats, img = self._read(image, channels)
         shape = (int(img.shape[0]), int(img.shape[1]))
         setup = self.setup()
         maps = search_maps(feats, shape, model, setup)

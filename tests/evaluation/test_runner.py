@@ -4,38 +4,8 @@ import cv2
 import numpy as np
 import pytest
 
-from posevote.data.training_set import TrainingSet
-from posevote.evaluation.protocols import Protocol, Row, Split
+from posevote.evaluation.protocols import Row
 from posevote.evaluation.runner import pose_error_deg, read_records, run_protocol, slug
-
-
-@pytest.fixture()
-def tiny_protocol(tmp_path_factory, synthetic_training, draw):
-    from posevote.data import object_box
-
-    images, az, boxes = synthetic_training
-    folder = tmp_path_factory.mktemp("tiny")
-    paths = []
-    for i, img in enumerate(images):
-        p = folder / f"train_{i:02d}.png"
-        cv2.imwrite(str(p), (img * 255).astype(np.uint8))
-        paths.append(p)
-    test_paths, test_az, test_boxes = [], [], []
-    for i, a in enumerate(np.radians([30.0, 110.0, 250.0, 330.0])):
-        img = draw(a)
-        p = folder / f"test_{i}.png"
-        cv2.imwrite(str(p), (img * 255).astype(np.uint8))
-        test_paths.append(p)
-        test_az.append([a, 0.0, 0.0])
-        test_boxes.append(object_box(img))
-    train = TrainingSet(images=tuple(paths), poses=np.column_stack([az, 0 * az, 0 * az]),
-                        boxes=boxes, masks=(None,) * len(paths), instances=("toy",) * len(paths))
-    test = TrainingSet(images=tuple(test_paths), poses=np.array(test_az),
-                       boxes=np.array(test_boxes), masks=(None,) * 4, instances=("toy",) * 4)
-    split = Split(name="only", train=train, test=test, groups=("seen",) * 4)
-    return Protocol(name="tiny", description="synthetic", splits=(split,),
-                    rows=(Row(name="weights + fitting", params={}),
-                          Row(name="later", params=None, note="arrives later")))
 
 
 def test_run_resume_and_report(tiny_protocol, tmp_path):
@@ -69,7 +39,7 @@ def test_run_resume_and_report(tiny_protocol, tmp_path):
 def test_run_rejects_bad_arguments(tiny_protocol, tmp_path):
     with pytest.raises(ValueError, match="unknown row"):
         run_protocol(tiny_protocol, tmp_path, rows=["nope"], log=lambda m: None)
-    with pytest.raises(ValueError, match="jobs and every"):
+    with pytest.raises(ValueError, match="jobs must be an integer"):
         run_protocol(tiny_protocol, tmp_path, jobs=0, log=lambda m: None)
 
 

@@ -21,7 +21,7 @@ def test_bad_training_input(synthetic_training):
         train_model(images[:1], az[:1], boxes=[[100, 100, 50, 50]])
     with pytest.raises(ValueError, match=r"images\[0\]: no edges found"):
         train_model([np.zeros((32, 32))], [0.0])
-    with pytest.raises(ValueError, match="boxes must have 2 rows"):
+    with pytest.raises(ValueError, match=r"boxes must have shape \(2, 4\)"):
         train_model(images[:2], az[:2], boxes=[[0, 0, 5, 5]])
     with pytest.raises(ValueError, match="mask shape"):
         train_model(images[:1], az[:1], masks=[np.ones((3, 3), bool)])

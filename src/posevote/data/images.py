@@ -1,7 +1,22 @@
-"""Reading images into the one form every later stage expects."""
+"""Reading images into the one form every later stage expects.
+
+Limits
+------
+An image may hold at most :data:`MAX_IMAGE_PIXELS` pixels (40 million by
+default; the environment variable ``POSEVOTE_MAX_IMAGE_PIXELS`` or an
+assignment to ``posevote.data.images.MAX_IMAGE_PIXELS`` changes it, as
+PIL's decompression-bomb limit is changed; past twice Pillow's own limit,
+``PIL.Image.MAX_IMAGE_PIXELS``, Pillow refuses too). A file's size is read
+from its header and refused before the pixels are decoded. A file that decodes
+with a warning (a truncated JPEG, a PNG with a bad checksum) is refused:
+its pixels are not what was photographed.
+"""
 
 from __future__ import annotations
 
+import io
+import os
+import warnings
 from pathlib import Path
 
 import cv2
@@ -9,12 +24,44 @@ import numpy as np
 from numpy.typing import NDArray
 
 
-def as_gray_float(image: NDArray, *, name: str = "image") -> NDArray[np.float64]:
+def _env_limit() -> int:
+    text = os.environ.get("POSEVOTE_MAX_IMAGE_PIXELS", "")
+    try:
+        return int(float(text)) if text.strip() else 40_000_000
+    except ValueError:
+        raise ValueError(f"POSEVOTE_MAX_IMAGE_PIXELS must be a number of pixels, got {text!r}"
+                         ) from None
+
+
+#: The most pixels (height x width) an image may hold.
+MAX_IMAGE_PIXELS: int = _env_limit()
+
+#: Channel orders a colour array may be given in.
+CHANNEL_ORDERS = ("rgb", "bgr")
+
+# Floats a little outside [0, 1] come from interpolation overshoot and are
+# clipped; further out the array is in other units (0..255) and is refused.
+_FLOAT_SLACK = 0.05
+
+
+def _check_size(name: str, height: int, width: int) -> None:
+    limit = MAX_IMAGE_PIXELS
+    if height * width > limit:
+        raise ValueError(
+            f"{name}: the image is {width} x {height} = {height * width:,} pixels, over the limit "
+            f"of {limit:,} (posevote.data.images.MAX_IMAGE_PIXELS, or the environment variable "
+            "POSEVOTE_MAX_IMAGE_PIXELS); downscale it, or raise the limit")
+
+
+def as_gray_float(image: NDArray, *, name: str = "image", channels: str = "rgb"
+                  ) -> NDArray[np.float64]:
     """Convert an image array to grey levels in ``[0, 1]``.
 
-    Accepts grey ``(H, W)``, RGB ``(H, W, 3)`` and RGBA ``(H, W, 4)`` arrays of
-    ``uint8``, ``uint16`` or float type (floats are taken to be in ``[0, 1]``).
-    Colour channels are taken in RGB order; the alpha channel is ignored.
+    Accepts grey ``(H, W)``, colour ``(H, W, 3)`` and ``(H, W, 4)`` arrays of
+    ``uint8``, ``uint16``, ``bool`` or float type; the fourth channel
+    (alpha) is ignored. Floats must lie in ``[0, 1]``: values up to 0.05
+    outside are clipped, further out the array is refused (a float image in
+    0..255 must be divided by 255 first).
 
     Parameters
     ----------
@@ -22,6 +69,9 @@ def as_gray_float(image: NDArray, *, name: str = "image") -> NDArray[np.float64]
         The image.
     name : str, optional
         How to name the image in error messages (a file name, an argument).
+    channels : {"rgb", "bgr"}, optional
+        The order of the colour channels: ``"bgr"`` for arrays from
+        ``cv2.imread``.
 
     Returns
     -------
@@ -32,8 +82,11 @@ def as_gray_float(image: NDArray, *, name: str = "image") -> NDArray[np.float64]
     TypeError
         If ``image`` is not an array of a supported type.
     ValueError
-        If it is empty, of an unsupported shape, or holds NaN or infinity.
+        If it is empty, of an unsupported shape, over :data:`MAX_IMAGE_PIXELS`,
+        holds NaN or infinity, or floats outside ``[0, 1]``.
     """
+    if channels not in CHANNEL_ORDERS:
+        raise ValueError(f"channels must be one of {', '.join(CHANNEL_ORDERS)}, got {channels!r}")
     if not isinstance(image, np.ndarray):
         raise TypeError(f"{name}: expected a numpy array, got {type(image).__name__}")
     if image.size == 0 or min(image.shape[:2], default=0) < 1:
@@ -49,6 +102,7 @@ def as_gray_float(image: NDArray, *, name: str = "image") -> NDArray[np.float64]
             f"{name}: expected a grey (H, W), RGB (H, W, 3) or RGBA (H, W, 4) image, "
             f"got shape {image.shape}"
         )
+    _check_size(name, int(image.shape[0]), int(image.shape[1]))
     if rgb.dtype == np.uint8:
         scaled = rgb.astype(np.float64) / 255.0
     elif rgb.dtype == np.uint16:
@@ -59,17 +113,54 @@ def as_gray_float(image: NDArray, *, name: str = "image") -> NDArray[np.float64]
         scaled = rgb.astype(np.float64)
         if not np.all(np.isfinite(scaled)):
             raise ValueError(f"{name}: the image holds NaN or infinite values")
+        low, high = float(scaled.min()), float(scaled.max())
+        if low < -_FLOAT_SLACK or high > 1.0 + _FLOAT_SLACK:
+            hint = " (divide a 0..255 image by 255)" if high > 1.0 + _FLOAT_SLACK else ""
+            raise ValueError(f"{name}: float pixels must lie in [0, 1], these span "
+                             f"[{low:g}, {high:g}]{hint}")
+        scaled = np.clip(scaled, 0.0, 1.0)
     else:
         raise TypeError(f"{name}: unsupported pixel type {rgb.dtype}; use uint8, uint16 or float")
     if scaled.ndim == 3:
-        scaled = scaled @ np.array([0.299, 0.587, 0.114])
+        luma = np.array([0.299, 0.587, 0.114])
+        scaled = scaled @ (luma if channels == "rgb" else luma[::-1])
     return np.ascontiguousarray(scaled)
+
+
+def _check_file(path: Path, data: bytes) -> None:
+    """Refuse an image whose header is over the pixel limit, or that decodes with a warning.
+
+    Pillow reads the header without decoding; formats it does not know are
+    left to OpenCV (their size is checked once decoded).
+    """
+    from PIL import Image, UnidentifiedImageError
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        # Pillow's own, higher limit warns at open; this module's limit decides.
+        warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+        try:
+            with Image.open(io.BytesIO(data)) as im:
+                width, height = im.size
+                _check_size(str(path), height, width)
+                im.load()
+        except UnidentifiedImageError:
+            return
+        except Image.DecompressionBombError as exc:
+            raise ValueError(f"{path}: the image is over the pixel limit of "
+                             f"{MAX_IMAGE_PIXELS:,} and Pillow's ({exc})") from None
+        except (OSError, SyntaxError, ValueError, EOFError, Warning) as exc:
+            if str(exc).startswith(str(path)):
+                raise
+            raise ValueError(f"{path}: the image file is damaged or truncated "
+                             f"({type(exc).__name__}: {exc})") from None
 
 
 def read_image(path: str | Path) -> NDArray[np.float64]:
     """Read an image file as grey levels in ``[0, 1]``.
 
-    Grey, RGB, RGBA, 8- and 16-bit files in any format OpenCV reads.
+    Grey, RGB, RGBA, 8- and 16-bit files in any format OpenCV reads; see
+    the module's limits.
 
     Parameters
     ----------
@@ -85,18 +176,29 @@ def read_image(path: str | Path) -> NDArray[np.float64]:
     FileNotFoundError
         If the file does not exist.
     ValueError
-        If the file cannot be decoded as an image or the image is empty.
+        If the file cannot be decoded as an image, is damaged or truncated,
+        is over the pixel limit, or the image is empty.
     """
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"image file not found: {path}")
-    raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    # No image within the pixel limit needs more than 8 bytes a pixel on disk.
+    most = 8 * MAX_IMAGE_PIXELS + (1 << 20)
+    size = path.stat().st_size
+    if size > most:
+        raise ValueError(f"{path}: the file is {size:,} bytes, more than an image within the "
+                         f"pixel limit ({MAX_IMAGE_PIXELS:,}) can take")
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise ValueError(f"{path}: cannot read the file ({exc.strerror or exc})") from None
+    _check_file(path, data)
+    raw = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED) \
+        if data else None
     if raw is None:
         raise ValueError(f"{path}: cannot decode this file as an image (unreadable or not an image)")
-    if raw.ndim == 3 and raw.shape[2] >= 3:
-        # OpenCV decodes colour as BGR(A).
-        raw = np.concatenate([raw[..., 2::-1], raw[..., 3:]], axis=2)
-    return as_gray_float(raw, name=str(path))
+    # OpenCV decodes colour as BGR(A).
+    return as_gray_float(raw, name=str(path), channels="bgr")
 
 
 def read_mask(path: str | Path) -> NDArray[np.bool_]:
@@ -108,11 +210,16 @@ def read_mask(path: str | Path) -> NDArray[np.bool_]:
     return mask
 
 
-def load_image(image: str | Path | NDArray, *, name: str = "image") -> NDArray[np.float64]:
+def load_image(image: str | Path | NDArray, *, name: str = "image", channels: str = "rgb"
+               ) -> NDArray[np.float64]:
     """A grey float image from a path (:func:`read_image`) or an array (:func:`as_gray_float`).
 
     ``name`` labels an array in error messages; a path labels itself.
+    ``channels`` is the colour order of an array (a file knows its own).
     """
     if isinstance(image, (str, Path)):
         return read_image(image)
-    return as_gray_float(image, name=name)
+    if not isinstance(image, np.ndarray):
+        raise TypeError(f"{name}: expected an image file path or a numpy array, got "
+                        f"{type(image).__name__}")
+    return as_gray_float(image, name=name, channels=channels)

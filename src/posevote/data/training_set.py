@@ -29,7 +29,10 @@ instance's median box height, the scale of each training view.
 from __future__ import annotations
 
 import csv
+import difflib
+import io
 import math
+import os
 import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -96,6 +99,16 @@ class TrainingSet:
         return [None if m is None else read_mask(m) for m in masks]
 
 
+#: The columns poses.csv may have; any other column is refused (a misspelt
+#: optional column would otherwise be ignored without a word).
+COLUMNS = ("image", "azimuth_deg", "elevation_deg", "inplane_deg", *_BOX_COLUMNS, "mask",
+           "instance", "category")
+#: Azimuth and in-plane angles beyond this (degrees) are refused as mistakes.
+MAX_ANGLE_DEG = 720.0
+#: A poses.csv larger than this (bytes) is refused before it is read.
+MAX_POSES_BYTES = 64 << 20
+
+
 def _parse_float(text: str, *, path: Path, row: int, column: str) -> float:
     try:
         value = float(text)
@@ -108,13 +121,75 @@ def _parse_float(text: str, *, path: Path, row: int, column: str) -> float:
     return value
 
 
-def read_poses_csv(folder: str | Path) -> TrainingSet:
+def _inside(folder: Path, name: str, *, path: Path, row: int, column: str,
+            allow_outside: bool) -> Path:
+    """``folder / name``, refused if ``name`` leads outside ``folder`` (unless allowed)."""
+    relative = Path(name)
+    escapes = relative.is_absolute() or os.path.normpath(name).split(os.sep)[0] == ".."
+    if escapes and not allow_outside:
+        raise ValueError(f"{path}, row {row}: column {column!r} names {name!r}, outside the "
+                         "training folder; paths must be relative and stay inside it "
+                         "(allow_outside_paths=True, or --allow-outside-paths, to permit it)")
+    return folder / relative
+
+
+def _header(path: Path, fields: list[str]) -> list[str]:
+    columns = [c.strip() for c in fields]
+    seen: set[str] = set()
+    for c in columns:
+        if c in seen:
+            raise ValueError(f"{path}: column {c!r} appears twice in the header")
+        seen.add(c)
+    unknown = [c for c in columns if c not in COLUMNS]
+    if unknown:
+        hints = []
+        for c in unknown:
+            near = difflib.get_close_matches(c, COLUMNS, n=1, cutoff=0.6)
+            hints.append(f"{c!r}" + (f" (did you mean {near[0]!r}?)" if near else ""))
+        raise ValueError(f"{path}: unknown column(s) {', '.join(hints)}; the columns are "
+                         f"{', '.join(COLUMNS)}")
+    for required in ("image", "azimuth_deg"):
+        if required not in columns:
+            raise ValueError(
+                f"{path}: missing column {required!r} (header has {', '.join(columns) or 'nothing'})"
+            )
+    has_box = [c in columns for c in _BOX_COLUMNS]
+    if any(has_box) and not all(has_box):
+        raise ValueError(f"{path}: give all four box columns {_BOX_COLUMNS} or none")
+    return columns
+
+
+def _read_rows(path: Path) -> list[list[str]]:
+    """The rows of ``path`` (header first), with errors naming the file and line."""
+    size = path.stat().st_size
+    if size > MAX_POSES_BYTES:
+        raise ValueError(f"{path}: {size:,} bytes, over the limit of {MAX_POSES_BYTES:,} for a "
+                         "poses file")
+    raw = path.read_bytes()
+    try:
+        text = raw.decode("utf-8-sig")  # a UTF-8 byte-order mark is allowed
+    except UnicodeDecodeError as exc:
+        line = raw[:exc.start].count(b"\n") + 1
+        raise ValueError(f"{path}, line {line}: not UTF-8 text (byte {exc.start}); save the "
+                         "file as UTF-8") from None
+    reader = csv.reader(io.StringIO(text, newline=""))
+    try:
+        return [row for row in reader if row and any(cell.strip() for cell in row)]
+    except csv.Error as exc:
+        raise ValueError(f"{path}, line {reader.line_num}: malformed CSV ({exc})") from None
+
+
+def read_poses_csv(folder: str | Path, *, allow_outside_paths: bool = False) -> TrainingSet:
     """Read a training set folder: images plus ``poses.csv`` (module docstring).
 
     Parameters
     ----------
     folder : str or Path
         Folder holding ``poses.csv`` and the images it names.
+    allow_outside_paths : bool, optional
+        Let image and mask paths be absolute or lead out of ``folder``
+        (``../``); refused by default, so that a poses file cannot make
+        posevote read files elsewhere.
 
     Returns
     -------
@@ -125,8 +200,10 @@ def read_poses_csv(folder: str | Path) -> TrainingSet:
     FileNotFoundError
         If the folder, ``poses.csv`` or an image or mask it names is missing.
     ValueError
-        If ``poses.csv`` is malformed: missing columns, non-numeric or NaN
-        values, a partial or non-positive box. The message names the row.
+        If ``poses.csv`` is malformed: unknown, duplicate or missing
+        columns, non-numeric, NaN or out-of-range values, a partial or
+        non-positive box, two rows for one image, a path leading outside
+        the folder, text that is not UTF-8. The message names the row.
     """
     folder = Path(folder)
     path = folder / POSES_FILE
@@ -134,62 +211,73 @@ def read_poses_csv(folder: str | Path) -> TrainingSet:
         raise FileNotFoundError(f"training folder not found: {folder}")
     if not path.is_file():
         raise FileNotFoundError(f"{path} not found: a training folder needs a {POSES_FILE}")
-    with path.open(newline="", encoding="utf-8") as fh:
-        reader = csv.DictReader(fh)
-        columns = reader.fieldnames or []
-        for required in ("image", "azimuth_deg"):
-            if required not in columns:
-                raise ValueError(
-                    f"{path}: missing column {required!r} (header has {', '.join(columns) or 'nothing'})"
-                )
-        has_box = [c in columns for c in _BOX_COLUMNS]
-        if any(has_box) and not all(has_box):
-            raise ValueError(f"{path}: give all four box columns {_BOX_COLUMNS} or none")
-        images: list[Path] = []
-        poses: list[NDArray[np.float64]] = []
-        boxes: list[list[float]] = []
-        masks: list[Path | None] = []
-        instances: list[str] = []
-        categories: set[str] = set()
-        for row_number, row in enumerate(reader, start=2):
-            if None in row:
-                raise ValueError(f"{path}, row {row_number}: more fields than header columns")
-            name = (row.get("image") or "").strip()
-            if not name:
-                raise ValueError(f"{path}, row {row_number}: empty 'image'")
-            image_path = folder / name
-            if not image_path.is_file():
-                raise FileNotFoundError(f"{path}, row {row_number}: image file not found: {image_path}")
-            angles = [
-                _parse_float(row.get(col) or ("0" if col != "azimuth_deg" else ""),
-                             path=path, row=row_number, column=col)
-                for col in ("azimuth_deg", "elevation_deg", "inplane_deg")
-            ]
-            if abs(angles[1]) > 90:
-                raise ValueError(f"{path}, row {row_number}: elevation_deg must be in [-90, 90], "
-                                 f"got {angles[1]}")
-            poses.append(np.radians(angles))
-            if all(has_box):
-                box = [_parse_float(row[c] or "", path=path, row=row_number, column=c)
-                       for c in _BOX_COLUMNS]
-                if box[2] <= 0 or box[3] <= 0:
-                    raise ValueError(f"{path}, row {row_number}: box width and height must be "
-                                     f"positive, got {box[2]} x {box[3]}")
-                boxes.append(box)
-            else:
-                boxes.append([np.nan] * 4)
-            mask_name = (row.get("mask") or "").strip()
-            if mask_name:
-                mask_path = folder / mask_name
-                if not mask_path.is_file():
-                    raise FileNotFoundError(f"{path}, row {row_number}: mask file not found: {mask_path}")
-                masks.append(mask_path)
-            else:
-                masks.append(None)
-            instances.append((row.get("instance") or "").strip())
-            if row.get("category"):
-                categories.add(row["category"].strip())
-            images.append(image_path)
+    table = _read_rows(path)
+    if not table:
+        raise ValueError(f"{path}: the file is empty; it needs a header row and one row per image")
+    columns = _header(path, table[0])
+    has_box = _BOX_COLUMNS[0] in columns
+    images: list[Path] = []
+    poses: list[NDArray[np.float64]] = []
+    boxes: list[list[float]] = []
+    masks: list[Path | None] = []
+    instances: list[str] = []
+    categories: set[str] = set()
+    first_row: dict[str, int] = {}
+    for row_number, cells in enumerate(table[1:], start=2):
+        if len(cells) > len(columns):
+            raise ValueError(f"{path}, row {row_number}: more fields than header columns "
+                             f"({len(cells)} for {len(columns)})")
+        if len(cells) < len(columns):
+            raise ValueError(f"{path}, row {row_number}: {len(cells)} fields for "
+                             f"{len(columns)} header columns")
+        row = {c: v.strip() for c, v in zip(columns, cells, strict=True)}
+        name = row["image"]
+        if not name:
+            raise ValueError(f"{path}, row {row_number}: empty 'image'")
+        image_path = _inside(folder, name, path=path, row=row_number, column="image",
+                             allow_outside=allow_outside_paths)
+        key = os.path.normpath(str(image_path))
+        if key in first_row:
+            raise ValueError(f"{path}, row {row_number}: image {name!r} is already given in row "
+                             f"{first_row[key]}; give each image one row")
+        first_row[key] = row_number
+        if not image_path.is_file():
+            raise FileNotFoundError(f"{path}, row {row_number}: image file not found: {image_path}")
+        angles = [
+            _parse_float(row.get(col) or ("0" if col != "azimuth_deg" else ""),
+                         path=path, row=row_number, column=col)
+            for col in ("azimuth_deg", "elevation_deg", "inplane_deg")
+        ]
+        if abs(angles[1]) > 90:
+            raise ValueError(f"{path}, row {row_number}: elevation_deg must be in [-90, 90], "
+                             f"got {angles[1]}")
+        for col, value in (("azimuth_deg", angles[0]), ("inplane_deg", angles[2])):
+            if abs(value) > MAX_ANGLE_DEG:
+                raise ValueError(f"{path}, row {row_number}: {col} must be in "
+                                 f"[-{MAX_ANGLE_DEG:g}, {MAX_ANGLE_DEG:g}] degrees, got {value:g}")
+        poses.append(np.radians(angles))
+        if has_box:
+            box = [_parse_float(row[c], path=path, row=row_number, column=c)
+                   for c in _BOX_COLUMNS]
+            if box[2] <= 0 or box[3] <= 0:
+                raise ValueError(f"{path}, row {row_number}: box width and height must be "
+                                 f"positive, got {box[2]} x {box[3]}")
+            boxes.append(box)
+        else:
+            boxes.append([np.nan] * 4)
+        mask_name = row.get("mask", "")
+        if mask_name:
+            mask_path = _inside(folder, mask_name, path=path, row=row_number, column="mask",
+                                allow_outside=allow_outside_paths)
+            if not mask_path.is_file():
+                raise FileNotFoundError(f"{path}, row {row_number}: mask file not found: {mask_path}")
+            masks.append(mask_path)
+        else:
+            masks.append(None)
+        instances.append(row.get("instance", ""))
+        if row.get("category"):
+            categories.add(row["category"])
+        images.append(image_path)
     if not images:
         raise ValueError(f"{path}: no rows; a training set needs at least one image")
     if len(categories) > 1:
@@ -351,19 +439,34 @@ def read_epfl(folder: str | Path, *, cars: Sequence[int]) -> TrainingSet:
         sense = [int(x) for x in meta[6].split()]
     except (IndexError, ValueError):
         raise ValueError(f"{meta_path}: malformed; expected 7 lines (see METHOD.md)") from None
-    times = [[float(x) for x in line.split()] for line in times_path.read_text().splitlines()]
+    if k_lines := {len(n_frames), len(n360), len(front), len(sense)} - {len(n_frames)}:
+        raise ValueError(f"{meta_path}: lines 2 and 5-7 must give one number per sequence "
+                         f"({len(n_frames)} sequences, other lengths {sorted(k_lines)})")
+    try:
+        times = [[float(x) for x in line.split()] for line in times_path.read_text().splitlines()]
+    except (ValueError, UnicodeDecodeError):
+        raise ValueError(f"{times_path}: malformed; expected one line of frame times (seconds) "
+                         "per sequence") from None
     images, poses, boxes, instances = [], [], [], []
     for car in cars:
         if not 1 <= car <= len(n_frames):
             raise ValueError(f"car {car} is not in {meta_path} (1..{len(n_frames)})")
         k = car - 1
-        t = np.array(times[k])
+        t = np.array(times[k] if k < len(times) else [])
         if len(t) != n_frames[k]:
             raise ValueError(f"{times_path}, line {car}: {len(t)} times for {n_frames[k]} frames")
         bbox_path = folder / (bbox_pattern % car)
-        bb = np.loadtxt(bbox_path, ndmin=2)
+        if not bbox_path.is_file():
+            raise FileNotFoundError(f"EPFL box file not found: {bbox_path}")
+        try:
+            bb = np.loadtxt(bbox_path, ndmin=2)
+        except ValueError:
+            raise ValueError(f"{bbox_path}: malformed; expected rows of x y w h") from None
         if bb.shape != (n_frames[k], 4):
             raise ValueError(f"{bbox_path}: expected {n_frames[k]} rows of x y w h, got {bb.shape}")
+        if not (1 <= front[k] <= n_frames[k] and 2 <= n360[k] <= n_frames[k]):
+            raise ValueError(f"{meta_path}: sequence {car}'s frontal frame {front[k]} or "
+                             f"full-turn frame {n360[k]} is not among its {n_frames[k]} frames")
         t_front = t[front[k] - 1]
         t_360 = t[n360[k] - 1] - t[0]
         for j in range(n_frames[k]):

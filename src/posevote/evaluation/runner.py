@@ -3,11 +3,13 @@
 Layout of a results folder (``--out``)::
 
     code.json                     fingerprint of the posevote code that made the records
+    .lock                         held while a run writes (a second run at once is refused)
     models/<row>__<split>.npz     trained models (reused when their settings match)
     records/<row>__<split>.jsonl  one JSON line per finished test image
     results.csv                   every record of every row (written at the end)
     summary.json                  the metrics of every row and group
     report.md                     the table beside the published numbers
+    wall.json                     wall time of the runs so far (updated as each run goes)
     *.png                         plots (see :mod:`posevote.evaluation.report`)
 
 Resuming: records are appended one line at a time, flushed and synced, so
@@ -23,14 +25,16 @@ done.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import math
 import os
 import re
 import shutil
+import sys
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
@@ -60,17 +64,20 @@ def pose_error_deg(estimate: float, truth: float, *, half_turn: bool) -> float:
 
 
 def read_records(path: Path) -> list[dict[str, Any]]:
-    """The complete records of a JSON-lines file (a cut-short last line is dropped)."""
+    """The complete records of a JSON-lines file, one an image (a cut-short last line is dropped)."""
     if not path.is_file():
         return []
     out = []
+    seen: set[str] = set()
     with path.open("r", encoding="utf-8") as fh:
         for line in fh:
             try:
                 rec = json.loads(line)
             except json.JSONDecodeError:
                 continue
-            if isinstance(rec, dict) and "image" in rec:
+            # One record an image: a second (from a run that overlapped) is ignored.
+            if isinstance(rec, dict) and "image" in rec and rec["image"] not in seen:
+                seen.add(rec["image"])
                 out.append(rec)
     return out
 
@@ -89,15 +96,63 @@ def repair_records(path: Path) -> None:
 _ESTIMATORS: dict[str, PoseEstimator] = {}
 
 
-def _init_worker() -> None:
+def _init_worker(parent: int) -> None:
     """One thread per worker process for numba and BLAS: the processes fill the cores.
 
     OpenCV's thread count is set to one in the parent before the workers
     are forked (:func:`run_protocol`): setting it in a forked child whose
-    parent had used OpenCV's threads hangs.
+    parent had used OpenCV's threads hangs. On Linux the kernel kills the
+    worker when its parent dies, however it dies (SIGTERM, SIGKILL).
     """
+    if sys.platform.startswith("linux"):
+        import ctypes
+        import signal
+
+        pr_set_pdeathsig = 1
+        ctypes.CDLL(None, use_errno=True).prctl(pr_set_pdeathsig, int(signal.SIGKILL))
+    if os.getppid() != parent:   # the parent died before the line above
+        os._exit(1)
     os.environ["NUMBA_NUM_THREADS"] = "1"
     threadpool_limits(1)
+
+
+def worker_pool(jobs: int) -> ProcessPoolExecutor:
+    """Worker processes for the test images, each ending with its parent (:func:`_init_worker`)."""
+    return ProcessPoolExecutor(max_workers=jobs, initializer=_init_worker,
+                               initargs=(os.getpid(),))
+
+
+@contextlib.contextmanager
+def folder_lock(out: Path) -> Iterator[None]:
+    """Hold the results folder for this run: a second run on it at once is refused.
+
+    The lock is the kernel's (``flock`` on ``out/.lock``): it is released
+    when the process ends, however it ends, so a killed run leaves none.
+    """
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / ".lock"
+    fh = path.open("a+")
+    try:
+        try:
+            import fcntl
+        except ImportError:   # not POSIX: no lock
+            yield
+            return
+        try:
+            fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            fh.seek(0)
+            holder = fh.read().strip() or "?"
+            raise ValueError(f"{out}: another posevote evaluate (pid {holder}) is writing to "
+                             "this results folder; wait for it to finish or use another --out"
+                             ) from None
+        fh.seek(0)
+        fh.truncate()
+        fh.write(f"{os.getpid()}\n")
+        fh.flush()
+        yield
+    finally:
+        fh.close()
 
 
 def estimate_record(model_path: str, task: dict[str, Any]) -> dict[str, Any]:
@@ -253,8 +308,9 @@ def run_protocol(protocol: Protocol, out_dir: str | Path, *, jobs: int = 1, ever
         ``wall_seconds_total`` (summed over the runs that built the folder).
     """
     log = log if log is not None else (lambda message: None)
-    if jobs < 1 or every < 1:
-        raise ValueError(f"jobs and every must be >= 1, got jobs={jobs}, every={every}")
+    for name, value in (("jobs", jobs), ("every", every)):
+        if not (isinstance(value, int) and not isinstance(value, bool) and 1 <= value <= 100_000):
+            raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
     run_start = time.perf_counter()
     out = Path(out_dir)
     chosen = list(protocol.rows)
@@ -267,12 +323,41 @@ def run_protocol(protocol: Protocol, out_dir: str | Path, *, jobs: int = 1, ever
             raise ValueError(f"unknown row(s) {unknown}; rows of {protocol.name}: "
                              f"{', '.join(sorted(names))}")
         chosen = [r for r in protocol.rows if r.name in rows]
+    with folder_lock(out):
+        return _run_locked(protocol, out, chosen, jobs=jobs, every=every, progress=progress,
+                           log=log, run_start=run_start)
+
+
+def _previous_wall(out: Path) -> float:
+    """The wall time of the earlier runs that built ``out``, seconds (0 if none is recorded)."""
+    for name in ("wall.json", "summary.json"):
+        try:
+            value = float(json.loads((out / name).read_text()).get("wall_seconds_total", 0.0))
+        except (ValueError, OSError, AttributeError, TypeError):
+            continue
+        if math.isfinite(value) and value >= 0:
+            return value
+    return 0.0
+
+
+def _run_locked(protocol: Protocol, out: Path, chosen: list[Row], *, jobs: int, every: int,
+                progress: Callable[[int, int], Any] | None, log: Callable[[str], None],
+                run_start: float) -> dict[str, Any]:
+    """:func:`run_protocol` once the folder is held."""
+    previous = _previous_wall(out)
     _check_code(out, log)
     (out / "models").mkdir(parents=True, exist_ok=True)
     (out / "records").mkdir(parents=True, exist_ok=True)
+
+    def keep_time() -> None:
+        # Written as the run goes, so that a killed run's time still counts.
+        atomic_write_text(out / "wall.json", json.dumps(
+            {"wall_seconds_total": previous + time.perf_counter() - run_start}) + "\n")
+
     runnable = [r for r in chosen if r.params is not None]
     facts: dict[str, dict[str, Any]] = {}
     plan: list[tuple[str, Path, list[dict[str, Any]]]] = []
+    planned: dict[str, set[str]] = {}
     total = done = 0
     for row in runnable:
         for split in protocol.splits:
@@ -280,10 +365,12 @@ def run_protocol(protocol: Protocol, out_dir: str | Path, *, jobs: int = 1, ever
             model_path = out / "models" / f"{key}.npz"
             record_path = out / "records" / f"{key}.jsonl"
             facts[key] = _train(protocol, row, split, model_path, record_path, log)
+            keep_time()
             repair_records(record_path)
             finished = {r["image"] for r in read_records(record_path)}
             tasks = []
             trained = set(split.train.instances)
+            planned[key] = set()
             for i in range(0, len(split.test.images), every):
                 box = None if split.test.boxes is None else split.test.boxes[i].tolist()
                 task = {"row": row.name, "split": split.name, "image": str(split.test.images[i]),
@@ -292,6 +379,7 @@ def run_protocol(protocol: Protocol, out_dir: str | Path, *, jobs: int = 1, ever
                         "truth": float(split.test.poses[i, 0]), "box": box,
                         "half_turn": split.half_turn}
                 total += 1
+                planned[key].add(task["image"])
                 if task["image"] in finished:
                     done += 1
                 else:
@@ -302,8 +390,7 @@ def run_protocol(protocol: Protocol, out_dir: str | Path, *, jobs: int = 1, ever
         log(f"resuming: {done} of {total} test images already done")
     if progress is not None:
         progress(done, total)
-    executor = ProcessPoolExecutor(max_workers=jobs, initializer=_init_worker) if jobs > 1 \
-        else None
+    executor = worker_pool(jobs) if jobs > 1 else None
     cv_threads = cv2.getNumThreads()
     if executor is not None:
         cv2.setNumThreads(1)   # inherited by the workers, forked at the first task
@@ -320,6 +407,7 @@ def run_protocol(protocol: Protocol, out_dir: str | Path, *, jobs: int = 1, ever
                     fh.flush()
                     os.fsync(fh.fileno())
                     done += 1
+                    keep_time()
                     if progress is not None:
                         progress(done, total)
     finally:
@@ -327,22 +415,19 @@ def run_protocol(protocol: Protocol, out_dir: str | Path, *, jobs: int = 1, ever
             executor.shutdown(wait=True, cancel_futures=True)
         cv2.setNumThreads(cv_threads)
     records = []
-    for row in runnable:
-        for split in protocol.splits:
-            key = f"{slug(row.name)}__{slug(split.name)}"
-            records += read_records(out / "records" / f"{key}.jsonl")
+    for key, images in planned.items():
+        # Only this run's selection (--every): a folder may hold more from earlier runs.
+        records += [r for r in read_records(out / "records" / f"{key}.jsonl")
+                    if r["image"] in images]
     summary = summarize(protocol, chosen, records, facts, every=every)
-    previous = 0.0   # the time of earlier runs counts only when this one resumed their records
-    if resumed and (out / "summary.json").is_file():
-        try:
-            previous = float(json.loads((out / "summary.json").read_text())
-                             .get("wall_seconds_total", 0.0))
-        except (ValueError, OSError, AttributeError):
-            previous = 0.0
     summary["wall_seconds_this_run"] = time.perf_counter() - run_start
-    summary["wall_seconds_total"] = previous + summary["wall_seconds_this_run"]
+    # The time of earlier runs counts only when this one resumed their records.
+    summary["wall_seconds_total"] = (previous if resumed else 0.0) \
+        + summary["wall_seconds_this_run"]
     summary["jobs"] = jobs
     write_report(protocol, summary, records, out)
+    atomic_write_text(out / "wall.json", json.dumps(
+        {"wall_seconds_total": summary["wall_seconds_total"]}) + "\n")
     return summary
 
 

@@ -20,7 +20,13 @@ from numpy.typing import NDArray
 from posevote._options import Options
 from posevote.features.edges import EdgeFeatures
 from posevote.geometry import viewing_direction
-from posevote.inference.voting import TestMaps, prepare_test, scaled_features, search_translations
+from posevote.inference.voting import (
+    MAX_MAP_BYTES,
+    TestMaps,
+    prepare_test,
+    scaled_features,
+    search_translations,
+)
 from posevote.model.density import PoseModel, viewpoint_weights
 from posevote.model.kernels import K1_CUTOFF, ORIENTATION_KAPPA
 from posevote.model.morph import morphed_positions
@@ -96,8 +102,8 @@ class SearchOptions(Options):
             self._fail("inplane_range_deg", "a span under 360 degrees", self.inplane_range_deg)
         self._number("inplane_step_deg", low=0.1, high=180.0)
         low, high = self._pair("scale_range")
-        if not 0.01 <= low <= high <= 100:
-            self._fail("scale_range", "(low, high) with 0.01 <= low <= high <= 100",
+        if not 0.05 <= low <= high <= 20:
+            self._fail("scale_range", "(low, high) with 0.05 <= low <= high <= 20",
                        self.scale_range)
         self._number("scale_steps", low=1, high=MAX_GRID_STEPS, integer=True)
         for name in ("object_kernel", "chance_correction"):
@@ -195,9 +201,30 @@ def scale_maps(features: EdgeFeatures, shape: tuple[int, int], setup: SearchSetu
                        scale=float(s), search=search) for s in setup.options.grid()[1]]
 
 
+def map_bytes(shape: tuple[int, int], options: SearchOptions) -> int:
+    """The memory the search's test maps of an image of ``shape`` take, bytes."""
+    h, w = shape
+    if not options.object_kernel:
+        return 16 * h * w * 4
+    return sum(16 * int(np.ceil(h / s)) * int(np.ceil(w / s)) * 4 for s in options.grid()[1])
+
+
 def search_maps(features: EdgeFeatures, shape: tuple[int, int], model: PoseModel,
                 setup: SearchSetup) -> TestMaps | list[TestMaps]:
-    """The maps the search runs on: one set, or one per scale (``object_kernel``)."""
+    """The maps the search runs on: one set, or one per scale (``object_kernel``).
+
+    Raises
+    ------
+    ValueError
+        If they would take more than ``MAX_MAP_BYTES`` (checked before any
+        is made).
+    """
+    need = map_bytes(shape, setup.options)
+    if need > MAX_MAP_BYTES:
+        raise ValueError(f"the search's test maps of this {shape[1]} x {shape[0]} image take "
+                         f"{need / 2**30:.1f} GiB, over the limit of {MAX_MAP_BYTES / 2**30:.0f} "
+                         "GiB; downscale the image, or narrow SearchOptions.scale_range or "
+                         "scale_steps")
     sigma = search_sigma(model, setup)
     if not setup.options.object_kernel:
         return image_maps(features, shape, setup, sigma=sigma, search=True)

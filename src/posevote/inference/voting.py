@@ -30,6 +30,11 @@ from posevote.model.kernels import orientation_cutoff, orientation_kernel
 _LUT_SIZE = 1024  # orientation-kernel table over [0, pi/2]
 
 
+#: The most memory (bytes) the test maps of one search may take; a search
+#: past it is refused before anything is allocated.
+MAX_MAP_BYTES = 4 << 30
+
+
 @dataclass(frozen=True, kw_only=True, eq=False)
 class TestMaps:
     """The test image's features, prepared for voting and scoring.
@@ -110,6 +115,11 @@ def prepare_test(features: EdgeFeatures, shape: tuple[int, int], *, position_sig
     TestMaps
     """
     h, w = shape
+    need = density_bins * h * w * 4
+    if need > MAX_MAP_BYTES:
+        raise ValueError(f"the test maps of a {w} x {h} image (scaled) take {need / 2**30:.1f} "
+                         f"GiB, over the limit of {MAX_MAP_BYTES / 2**30:.0f} GiB; downscale the "
+                         "image or narrow SearchOptions.scale_range")
     weight = np.ones(len(features))
     bins = np.minimum((features.theta / np.pi * vote_bins).astype(np.int64), vote_bins - 1)
     order = np.argsort(bins, kind="stable")

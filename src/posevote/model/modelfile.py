@@ -36,6 +36,13 @@ from posevote.model.training import TrainedModel
 FORMAT_NAME = "posevote-model"
 FORMAT_VERSION = 3
 
+#: A model file larger than this (bytes) is refused before it is read.
+MAX_MODEL_BYTES = 2 << 30
+#: The most features and views a model file may declare (each array is
+#: checked against these before it is decompressed).
+MAX_FEATURES = 50_000_000
+MAX_VIEWS = 1_000_000
+
 _FEATURE_ARRAYS = ("xy", "theta", "view", "weight")
 _ARRAYS = (*_FEATURE_ARRAYS, "view_azimuth", "view_elevation", "view_box", "view_instance")
 _MORPH_ARRAYS = ("shift", "view_neighbour")
@@ -107,15 +114,26 @@ def load_model(path: str | Path) -> tuple[TrainedModel, dict[str, Any]]:
 
     Raises
     ------
+    TypeError
+        If ``path`` is not a str or Path.
     FileNotFoundError
         If the file does not exist.
     ValueError
-        If it is not a posevote model, is truncated or corrupt, or was written
-        by a newer format version than this posevote reads.
+        If it is not a posevote model, is truncated or corrupt (arrays of the
+        wrong shape or type, values that are not finite, zero boxes, header
+        fields of the wrong type), is past the size limits, or was written
+        by another format version than this posevote reads. The message
+        names the file and the array or field.
     """
+    if not isinstance(path, (str, Path)):
+        raise TypeError(f"path must be a str or Path, got {type(path).__name__}")
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"model file not found: {path}")
+    size = path.stat().st_size
+    if size > MAX_MODEL_BYTES:
+        raise ValueError(f"{path}: {size:,} bytes, over the limit of {MAX_MODEL_BYTES:,} for a "
+                         "model file")
     if not zipfile.is_zipfile(path):
         raise ValueError(f"{path}: not a posevote model file (not an .npz archive, or truncated)")
     try:
@@ -137,6 +155,11 @@ def load_model(path: str | Path) -> tuple[TrainedModel, dict[str, Any]]:
                 raise ValueError(
                     f"{path}: model format version {version} was written by an older posevote "
                     f"(this one reads {FORMAT_VERSION}); retrain the model")
+            missing = [name for name in _ARRAYS if name not in data.files]
+            if missing:
+                raise ValueError(f"{path}: corrupt model file (missing array(s) "
+                                 f"{', '.join(missing)})")
+            _check_sizes(path, data)
             arrays = {name: data[name] for name in _ARRAYS}
             arrays.update({name: data[name] for name in _MORPH_ARRAYS if name in data.files})
             full = ({name: data[f"full_{name}"] for name in _FEATURE_ARRAYS}
@@ -159,6 +182,7 @@ def load_model(path: str | Path) -> tuple[TrainedModel, dict[str, Any]]:
             UnicodeDecodeError) as exc:
         raise ValueError(f"{path}: not a posevote model file, or truncated/corrupt "
                          f"({type(exc).__name__}: {exc})") from None
+    _check_header(path, header)
     model = _build(path, arrays, header)
     full_model = None
     if full is not None:
@@ -200,6 +224,40 @@ def load_model(path: str | Path) -> tuple[TrainedModel, dict[str, Any]]:
     return trained, dict(params)
 
 
+def _check_sizes(path: Path, data: Any) -> None:
+    """Refuse arrays whose declared size is past the limits, before decompressing them."""
+    for name in data.files:
+        with data.zip.open(f"{name}.npy") as fh:
+            try:
+                version = np.lib.format.read_magic(fh)
+                read = (np.lib.format.read_array_header_1_0 if version == (1, 0)
+                        else np.lib.format.read_array_header_2_0)
+                shape, _, dtype = read(fh)
+            except ValueError as exc:
+                raise ValueError(f"{path}: corrupt model file (array {name}: {exc})") from None
+        n = int(np.prod(shape, dtype=np.float64)) if shape else 1
+        if dtype.hasobject or n * dtype.itemsize > MAX_MODEL_BYTES * 4 \
+                or (name in ("theta", "full_theta") and n > MAX_FEATURES) \
+                or (name == "view_azimuth" and n > MAX_VIEWS):
+            raise ValueError(f"{path}: corrupt model file (array {name} declares shape {shape} "
+                             f"of {dtype}, past the limits)")
+
+
+def _check_header(path: Path, header: dict[str, Any]) -> None:
+    """The header's fields have the types :func:`_build` reads."""
+    names = header.get("instance_names", [])
+    if not (isinstance(names, list) and all(isinstance(n, str) for n in names)):
+        raise ValueError(f"{path}: corrupt model file (header instance_names must be a list "
+                         f"of strings, got {names!r})")
+    ref = header.get("reference_size", 1.0)
+    if not (isinstance(ref, (int, float)) and not isinstance(ref, bool) and np.isfinite(ref)
+            and ref > 0):
+        raise ValueError(f"{path}: corrupt model file (header reference_size must be a "
+                         f"positive number, got {ref!r})")
+    if not isinstance(header.get("category", ""), str):
+        raise ValueError(f"{path}: corrupt model file (header category must be a string)")
+
+
 def _build(path: Path, arrays: dict[str, np.ndarray], header: dict[str, Any]) -> PoseModel:
     """A PoseModel from the file's arrays, after checking their shapes."""
     m = len(arrays["theta"])
@@ -207,7 +265,8 @@ def _build(path: Path, arrays: dict[str, np.ndarray], header: dict[str, Any]) ->
     shapes_ok = (arrays["xy"].shape == (m, 2) and arrays["view"].shape == (m,)
                  and arrays["weight"].shape == (m,) and arrays["view_box"].shape == (k, 2)
                  and arrays["view_elevation"].shape == (k,) and arrays["view_instance"].shape == (k,)
-                 and (m == 0 or (arrays["view"].min() >= 0 and arrays["view"].max() < k)))
+                 and (m == 0 or (arrays["view"].min() >= 0 and arrays["view"].max() < k))
+                 and all(np.issubdtype(arrays[n].dtype, np.number) for n in _ARRAYS))
     shift, neighbour = arrays.get("shift"), arrays.get("view_neighbour")
     if shift is not None or neighbour is not None:
         # The morphing arrays come together, one displacement pair per feature.
@@ -223,7 +282,13 @@ def _build(path: Path, arrays: dict[str, np.ndarray], header: dict[str, Any]) ->
                              "not finite)")
     if np.any(arrays["view_box"] <= 0):
         raise ValueError(f"{path}: corrupt model file (array view_box has boxes of zero size)")
+    if np.any(arrays["weight"] < 0):
+        raise ValueError(f"{path}: corrupt model file (array weight has negative weights)")
     names = tuple(header.get("instance_names", []))
+    if k and (arrays["view_instance"].min() < 0
+              or arrays["view_instance"].max() >= max(len(names), 1)):
+        raise ValueError(f"{path}: corrupt model file (array view_instance names instances "
+                         f"beyond the header's {len(names)} instance_names)")
     size = header.get("instance_size", [])
     if not (isinstance(size, list) and (not size or len(size) == len(names))
             and all(isinstance(f, (int, float)) and np.isfinite(f) and f > 0 for f in size)):

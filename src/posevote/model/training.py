@@ -54,13 +54,21 @@ class TrainedModel:
     pruning: dict[str, Any] | None = None
 
 
+#: Pose angles beyond this (radians) are refused: they are degrees given as radians.
+MAX_POSE_RAD = 4.0 * np.pi
+
+
 def _check_inputs(images: list[Any], poses: ArrayLike, boxes: ArrayLike | None,
                   masks: Sequence[Any] | None, instances: Sequence[str] | None
                   ) -> tuple[NDArray[np.float64], NDArray[np.float64], list[Any], list[str]]:
     k = len(images)
     if k == 0:
         raise ValueError("images: need at least one training image")
-    pose_arr = np.asarray(poses, dtype=np.float64)
+    try:
+        pose_arr = np.asarray(poses, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"poses must be an array of numbers (radians), got "
+                         f"{type(poses).__name__}") from None
     if pose_arr.ndim == 1:
         pose_arr = pose_arr[:, None]
     if pose_arr.ndim != 2 or pose_arr.shape[0] != k or not 1 <= pose_arr.shape[1] <= 3:
@@ -69,17 +77,33 @@ def _check_inputs(images: list[Any], poses: ArrayLike, boxes: ArrayLike | None,
     if not np.all(np.isfinite(pose_arr)):
         row = int(np.flatnonzero(~np.all(np.isfinite(pose_arr), axis=1))[0])
         raise ValueError(f"poses: row {row} is not finite ({pose_arr[row].tolist()})")
+    if np.abs(pose_arr).max() > MAX_POSE_RAD:
+        at = np.unravel_index(int(np.argmax(np.abs(pose_arr))), pose_arr.shape)
+        raise ValueError(f"poses: row {at[0]} holds {pose_arr[at]:g}, beyond +-4 pi; poses "
+                         "are radians (degrees? pass np.radians(poses))")
+    if pose_arr.shape[1] > 1 and np.abs(pose_arr[:, 1]).max() > np.pi / 2 + 1e-9:
+        high = int(np.argmax(np.abs(pose_arr[:, 1])))
+        raise ValueError(f"poses: row {high} has elevation {pose_arr[high, 1]:g} rad, outside "
+                         "[-pi/2, pi/2]")
     pose_arr = np.hstack([pose_arr, np.zeros((k, 3 - pose_arr.shape[1]))])
-    box_arr = (np.full((k, 4), np.nan) if boxes is None
-               else np.asarray(boxes, dtype=np.float64).reshape(-1, 4))
-    if box_arr.shape[0] != k:
-        raise ValueError(f"boxes must have {k} rows, got {box_arr.shape[0]}")
+    try:
+        box_arr = (np.full((k, 4), np.nan) if boxes is None
+                   else np.asarray(boxes, dtype=np.float64))
+    except (TypeError, ValueError):
+        raise ValueError("boxes must be an array of numbers, shape (K, 4)") from None
+    if box_arr.ndim == 1 and box_arr.size == 4 * k:
+        box_arr = box_arr.reshape(k, 4)
+    if box_arr.shape != (k, 4):
+        raise ValueError(f"boxes must have shape ({k}, 4) for {k} images, got {box_arr.shape}")
     mask_list = list(masks) if masks is not None else [None] * k
     if len(mask_list) != k:
         raise ValueError(f"masks must have {k} entries, got {len(mask_list)}")
     names = list(instances) if instances is not None else ["object"] * k
     if len(names) != k:
         raise ValueError(f"instances must have {k} entries, got {len(names)}")
+    bad = [i for i, n in enumerate(names) if not isinstance(n, str) or not n]
+    if bad:
+        raise ValueError(f"instances[{bad[0]}] must be a non-empty string, got {names[bad[0]]!r}")
     return pose_arr, box_arr, mask_list, names
 
 
@@ -120,13 +144,13 @@ def train_model(images: Sequence[str | Path | NDArray], poses: ArrayLike, *,
                 instances: Sequence[str] | None = None, category: str = "",
                 edges: EdgeOptions = EdgeOptions(), kernel: KernelOptions = KernelOptions(),
                 morph: bool = False, prune: PruningPreset | None = None,
-                appearance: bool = False, progress: Callable[[int], None] | None = None
-                ) -> TrainedModel:
+                appearance: bool = False, progress: Callable[[int], None] | None = None,
+                channels: str = "rgb") -> TrainedModel:
     """Learn a model from pose-annotated images (Sec. II-A, II-C, III-A).
 
     Parameters
     ----------
-    images, poses, boxes, masks, instances, category, progress
+    images, poses, boxes, masks, instances, category, progress, channels
         As in :meth:`posevote.estimator.PoseEstimator.fit`.
     edges : EdgeOptions
         Edge extraction.
@@ -143,6 +167,9 @@ def train_model(images: Sequence[str | Path | NDArray], poses: ArrayLike, *,
     -------
     TrainedModel
     """
+    if isinstance(images, (str, Path)):
+        raise TypeError(f"images must be a sequence of image paths or arrays, got the single "
+                        f"path {str(images)!r} (read a training folder with read_poses_csv)")
     images = list(images)
     pose_arr, box_arr, mask_list, names = _check_inputs(images, poses, boxes, masks, instances)
     k = len(images)
@@ -151,7 +178,7 @@ def train_model(images: Sequence[str | Path | NDArray], poses: ArrayLike, *,
     crops = ViewCrops() if morph else None
     for i, image in enumerate(images):
         label = str(image) if isinstance(image, (str, Path)) else f"images[{i}]"
-        img = load_image(image, name=label)
+        img = load_image(image, name=label, channels=channels)
         mask = _read_mask(label, mask_list[i], img.shape)
         box = _object_box(label, img, box_arr[i], mask)
         region = box_mask(img.shape, box)
