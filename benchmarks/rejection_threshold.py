@@ -118,6 +118,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--markdown", help="also write the printed report here")
     args = ap.parse_args(argv)
     everything = objects_in(args.data)
+    if len(everything) < 2:
+        ap.error(f"--data {args.data}: needs the views (objN__A.png) of two objects or more")
     objects = [int(o) for o in args.objects.split(",")] if args.objects else everything
     t0 = time.perf_counter()
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
@@ -175,6 +177,10 @@ def print_report(args, results: list[dict], wall: float) -> None:
     print(f"threshold chosen on all {len(results)} objects: {t:.3f}; on them it keeps "
           f"{100 * np.mean(right > t):.1f}% of right images and rejects "
           f"{100 * np.mean(wrong <= t):.1f}% of wrong ones")
+    for share in (0.95, 0.99):
+        cut = float(np.quantile(right, 1.0 - share))
+        print(f"  for comparison, keeping {100 * share:.0f}% of right images (threshold "
+              f"{cut:.3f}) rejects {100 * np.mean(wrong <= cut):.1f}% of wrong ones")
     lost = errors[scores <= t]
     print(f"right images it rejects: {len(lost)}, of which {int(np.sum(lost > 30))} have a "
           f"pose error over 30 deg (of {int(np.sum(errors > 30))} such errors in all)")

@@ -60,7 +60,7 @@ def run(data: Path, params: dict) -> dict[str, tuple[float, float, float]]:
             train = read_coil(data, objects=seen,
                               azimuths_deg=[a for i, a in enumerate(views) if i % 3 != r])
             test = read_coil(data, objects=seen, azimuths_deg=views[r::3])
-            est = PoseEstimator.from_preset("default", **params).fit(
+            est = PoseEstimator.from_preset("default", **{"min_score": 0.0, **params}).fit(
                 train.images, train.poses, boxes=train.boxes, instances=list(train.instances))
             for image, pose, inst in zip(test.images, test.poses, test.instances, strict=True):
                 res = est.estimate(image)
@@ -86,7 +86,8 @@ def margin_records(data: Path, params: dict | None = None) -> list[dict]:
     for cat, half, kind, train_objs, train_az, test_objs, test_az in folds:
         train = read_coil(data, objects=train_objs, azimuths_deg=train_az)
         test = read_coil(data, objects=test_objs, azimuths_deg=test_az)
-        est = PoseEstimator.from_preset("default", **{"prune": "moderate", **(params or {})})
+        est = PoseEstimator.from_preset("default", **{"min_score": 0.0, "prune": "moderate",
+                                                       **(params or {})})
         recognition = dataclasses.replace(est.recognition or RecognitionOptions(), margin=1.0)
         est.fit(train.images, train.poses, boxes=train.boxes, instances=list(train.instances))
         for image, pose in zip(test.images, test.poses, strict=True):

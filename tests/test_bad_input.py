@@ -645,3 +645,23 @@ def _running(pid: int) -> bool:
             return fh.read().split(") ")[-1][0] != "Z"
     except FileNotFoundError:
         return False
+
+
+# --- a wrong object -----------------------------------------------------------------------
+
+def test_the_default_preset_rejects_what_is_not_the_object(synthetic_training, tmp_path):
+    from posevote.evaluation.synthetic import clutter_background
+
+    images, az, boxes = synthetic_training
+    est = PoseEstimator.from_preset("default").fit(images, az, boxes=boxes)
+    clutter = clutter_background((128, 128), rng=np.random.default_rng(0))
+    result = est.estimate(clutter)
+    assert not result.found and result.best is None and 0 < result.top_score < est.min_score
+    assert est.set_params(min_score=0.0).estimate(clutter).found   # the threshold decides
+    est.set_params(min_score=0.54).save(tmp_path / "m.npz")
+    path = tmp_path / "clutter.png"
+    cv2.imwrite(str(path), (clutter * 255).astype(np.uint8))
+    r = invoke("estimate", tmp_path / "m.npz", path)
+    assert r.exit_code == 3 and "not above min_score 0.54" in r.output
+    r = invoke("estimate", tmp_path / "m.npz", path, "--min-score", "0")
+    assert r.exit_code == 0

@@ -267,8 +267,11 @@ def estimate(model: Path, image: Path, as_json: bool, overlay: Path | None,
                    f"{'' if b.refined else '  (not refined)'}")
         for rank, m in enumerate(result.modes[1:], start=2):
             click.echo(f"  mode {rank}: azimuth {m.azimuth_deg:.1f} deg  score {m.score:.3f}")
+    elif result.top_score > 0:
+        click.echo(f"no object found (best score {result.top_score:.3f}, not above "
+                   f"min_score {est.min_score:g})", err=True)
     else:
-        click.echo("no object found", err=True)
+        click.echo("no object found (no edges to vote)", err=True)
     if not result.found:
         sys.exit(EXIT_NOT_FOUND)
 

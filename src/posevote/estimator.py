@@ -289,9 +289,8 @@ class PoseEstimator:
         """The search setup of the fitted model with the current parameters."""
         self._check_fitted()
         return SearchSetup(options=self.search, position_sigma=self.kernel.position_sigma,
-                           edge_spacing=self.edges.spacing,
-                           viewpoint_kappa=self.viewpoint_kappa_, use_weights=self.weights,
-                           n_threads=self.n_jobs)
+                           edge_spacing=self.edges.spacing, viewpoint_kappa=self.viewpoint_kappa_,
+                           use_weights=self.weights, n_threads=self.n_jobs)
 
     def _read(self, image: ImageLike, channels: str) -> tuple[EdgeFeatures, NDArray[np.float64]]:
         img = load_image(image, channels=channels)
@@ -362,7 +361,8 @@ class PoseEstimator:
         kept = tuple(h for h in hyps if h.score > self.min_score)
         return PoseEstimate(found=bool(kept), best=kept[0] if kept else None, modes=kept,
                             n_test_features=len(feats), seconds=time.perf_counter() - start,
-                            instance=instance if kept else "", instance_margin=margin)
+                            instance=instance if kept else "", instance_margin=margin,
+                            top_score=max((h.score for h in hyps), default=0.0))
 
     # -- persistence -------------------------------------------------------------------
     def save(self, path: str | Path) -> None:
@@ -384,8 +384,8 @@ class PoseEstimator:
 
         Raises
         ------
-        FileNotFoundError, ValueError
-            Missing, foreign, corrupt or too-new files (the message names the file).
+        TypeError, FileNotFoundError, ValueError
+            A non-path argument; a missing, foreign, corrupt or other-version file.
         """
         from posevote.model.modelfile import load_model
 

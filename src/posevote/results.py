@@ -92,6 +92,9 @@ class PoseEstimate:
     instance_margin : float
         Score of the best instance over that of the runner-up at the
         category estimate (NaN when instances were not scored).
+    top_score : float
+        The best mode's score before ``min_score`` was applied (0 when there
+        was none): what a rejected image scored.
     """
 
     found: bool
@@ -101,6 +104,7 @@ class PoseEstimate:
     seconds: float = 0.0
     instance: str = ""
     instance_margin: float = float("nan")
+    top_score: float = 0.0
 
     def to_dict(self) -> dict[str, Any]:
         """Plain dict for files and reports (degrees, pixels)."""
@@ -112,4 +116,5 @@ class PoseEstimate:
             "seconds": self.seconds,
             "instance": self.instance,
             "instance_margin": None if math.isnan(self.instance_margin) else self.instance_margin,
+            "top_score": self.top_score,
         }
