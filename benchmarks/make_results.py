@@ -44,6 +44,14 @@ other 54; boxes and flat bottles scored on the half circle.
   angle ±30° on cluttered photographs with 20% of the object hidden:
   [`results/coil_instance_clutter.md`](results/coil_instance_clutter.md)
 
+Rejection of other objects (`min_score`, issue 25): each of the 40
+development objects' models against its own views between training views,
+views of the 39 others and background crops, 5-fold cross-validation over
+objects: [`results/rejection_threshold.md`](results/rejection_threshold.md)
+(clean views, the `default` preset) and
+[`results/rejection_threshold_clutter.md`](results/rejection_threshold_clutter.md)
+(pasted on clutter, the `cluttered` preset).
+
 One estimate with its viewpoints probed by 1 or 2 threads (`n_jobs`, the same
 estimate either way): [`results/time_threads.md`](results/time_threads.md)
 (`python benchmarks/time_threads.py --markdown docs/results/time_threads.md`).

@@ -319,6 +319,10 @@ def _truncated_png(p):
     p.write_bytes(data[:len(data) // 2])
 
 
+def _edited_jpeg(p, edit):
+    p.write_bytes(edit(cv2.imencode(".jpg", _noise())[1].tobytes()))
+
+
 def _bad_crc_png(p):
     data = bytearray(cv2.imencode(".png", _noise())[1].tobytes())
     data[data.find(b"IDAT") + 20] ^= 0xFF
@@ -329,6 +333,12 @@ def _bad_crc_png(p):
     ("cut.jpg", _truncated_jpeg, "truncated"),
     ("cut.png", _truncated_png, "truncated"),
     ("crc.png", _bad_crc_png, "damaged"),
+    ("scan.jpg", lambda p: _edited_jpeg(p, lambda b: b[:len(b) // 2] + b"\xff\xd0\xff\xd0"
+                                        + b[len(b) // 2:]), "Corrupt JPEG data"),
+    ("flip.jpg", lambda p: _edited_jpeg(p, lambda b: b[:600] + bytes([b[600] ^ 0xFF])
+                                        + b[601:]), "Corrupt JPEG data"),
+    ("tail.jpg", lambda p: _edited_jpeg(p, lambda b: b[:-2] + b"\0\0\0" + b[-2:]),
+     "extraneous bytes"),
     ("text.png", lambda p: p.write_text("hello"), "cannot decode"),
     ("empty.png", lambda p: p.write_bytes(b""), "cannot decode"),
     ("folder.png", lambda p: p.mkdir(), "not found"),

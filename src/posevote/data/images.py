@@ -8,14 +8,18 @@ assignment to ``posevote.data.images.MAX_IMAGE_PIXELS`` changes it, as
 PIL's decompression-bomb limit is changed; past twice Pillow's own limit,
 ``PIL.Image.MAX_IMAGE_PIXELS``, Pillow refuses too). A file's size is read
 from its header and refused before the pixels are decoded. A file that decodes
-with a warning (a truncated JPEG, a PNG with a bad checksum) is refused:
-its pixels are not what was photographed.
+with a warning (a truncated or corrupt JPEG, a PNG with a bad checksum) is
+refused: its pixels are not what was photographed. Warnings about metadata
+(colour profiles, unknown TIFF tags) are passed on to stderr, not refused.
 """
 
 from __future__ import annotations
 
 import io
 import os
+import re
+import sys
+import tempfile
 import warnings
 from pathlib import Path
 
@@ -156,6 +160,38 @@ def _check_file(path: Path, data: bytes) -> None:
                              f"({type(exc).__name__}: {exc})") from None
 
 
+# Decoder messages about metadata, not pixels: passed on, not refused.
+_BENIGN = re.compile(r"iCCP|sRGB|profile|Unknown field with tag|exif", re.IGNORECASE)
+
+
+def _decode(path: Path, data: bytes) -> NDArray | None:
+    """OpenCV's decoding, with the decoders' warnings (written to fd 2) turned into errors.
+
+    libjpeg reports a damaged scan ("Corrupt JPEG data: ...") only as a
+    warning on the process's standard error; the pixels it returns are not
+    the file's.
+    """
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with tempfile.TemporaryFile() as sink:
+        os.dup2(sink.fileno(), 2)
+        try:
+            raw = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+        sink.seek(0)
+        said = sink.read().decode("utf-8", "replace").splitlines()
+    harmful = [line.strip() for line in said if line.strip() and not _BENIGN.search(line)]
+    benign = [line for line in said if line.strip() and _BENIGN.search(line)]
+    if benign:
+        sys.stderr.write("\n".join(benign) + "\n")
+    if harmful:
+        raise ValueError(f"{path}: the image file is damaged (the decoder warned: "
+                         f"{'; '.join(harmful[:3])})")
+    return raw
+
+
 def read_image(path: str | Path) -> NDArray[np.float64]:
     """Read an image file as grey levels in ``[0, 1]``.
 
@@ -193,8 +229,7 @@ def read_image(path: str | Path) -> NDArray[np.float64]:
     except OSError as exc:
         raise ValueError(f"{path}: cannot read the file ({exc.strerror or exc})") from None
     _check_file(path, data)
-    raw = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED) \
-        if data else None
+    raw = _decode(path, data) if data else None
     if raw is None:
         raise ValueError(f"{path}: cannot decode this file as an image (unreadable or not an image)")
     # OpenCV decodes colour as BGR(A).
