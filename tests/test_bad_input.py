@@ -186,6 +186,14 @@ def test_train_param_syntax(folder, tmp_path, param, text):
     assert r.exit_code == 2 and text in r.output and "--param" in r.output
 
 
+@pytest.mark.parametrize(("option", "value"), [("--cars", "1-1000000000"), ("--cars", "5-1"),
+                                               ("--cars", "1-"), ("--objects", "a,b")])
+def test_number_lists(tmp_path, option, value):
+    layout = "epfl" if option == "--cars" else "coil"
+    r = invoke("train", tmp_path, "--layout", layout, option, value, "-o", tmp_path / "m.npz")
+    assert r.exit_code == 2 and option in r.output and value in r.output
+
+
 def test_unknown_preset(folder, tmp_path):
     r = invoke("train", folder, "--preset", "nosuch", "-o", tmp_path / "m.npz")
     assert r.exit_code == 1 and "unknown preset 'nosuch'" in r.output

@@ -111,6 +111,9 @@ def _int_list(text: str | None, *, option: str) -> list[int] | None:
         for part in text.split(","):
             if "-" in part:
                 lo, hi = part.split("-")
+                if not 0 <= int(hi) - int(lo) < 10_000:
+                    raise click.BadParameter(f"{part!r}: a range low-high with low <= high, "
+                                             "at most 10000 numbers", param_hint=option)
                 out.extend(range(int(lo), int(hi) + 1))
             elif part.strip():
                 out.append(int(part))

@@ -24,6 +24,12 @@ column             required  meaning
 
 The box fixes the object's reference point (its centre) and, with the
 instance's median box height, the scale of each training view.
+
+The file is UTF-8 (a byte-order mark is allowed). No other column is read:
+an unknown one is refused, with the near column name when there is one, so
+that a misspelt optional column is not ignored. Each image has one row;
+azimuth and in-plane angles lie within +-720 degrees. Image and mask paths
+are relative and stay inside the folder unless ``allow_outside_paths``.
 """
 
 from __future__ import annotations
