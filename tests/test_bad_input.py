@@ -683,3 +683,45 @@ def test_the_default_preset_rejects_what_is_not_the_object(synthetic_training, t
     assert r.exit_code == 3 and "not above min_score 0.54" in r.output
     r = invoke("estimate", tmp_path / "m.npz", path, "--min-score", "0")
     assert r.exit_code == 0
+
+
+@pytest.mark.parametrize(("line", "text"), [(2, "leads outside"), (3, "leads outside"),
+                                            (2, "does not take")])
+def test_epfl_metadata_cannot_lead_outside(epfl_dir, tmp_path, line, text):
+    import shutil
+
+    from posevote.data import read_epfl
+
+    copy = tmp_path / "tripod-seq"
+    copy.mkdir()
+    for name in ("tripod-seq.txt", "times.txt", "bbox_01.txt"):
+        shutil.copy(epfl_dir / name, copy / name)
+    meta = (copy / "tripod-seq.txt").read_text().splitlines()
+    pattern = "../../etc/%02d" + ("_%03d" if line == 2 else "") + ".txt"
+    meta[line] = pattern if text == "leads outside" else "x_%d_%d_%d.jpg"
+    (copy / "tripod-seq.txt").write_text("\n".join(meta) + "\n")
+    with pytest.raises(ValueError, match=text):
+        read_epfl(copy, cars=[1])
+
+
+def test_decoding_in_threads_keeps_stderr(tmp_path, capfd):
+    from concurrent.futures import ThreadPoolExecutor
+
+    from posevote.data import read_image
+
+    good = tmp_path / "g.png"
+    cv2.imwrite(str(good), _noise())
+    bad = tmp_path / "b.jpg"
+    _edited_jpeg(bad, lambda b: b[:-2] + b"\0\0\0" + b[-2:])
+
+    def read(path):
+        try:
+            return read_image(path).shape
+        except ValueError as exc:
+            return str(exc)
+
+    with ThreadPoolExecutor(8) as pool:
+        out = list(pool.map(read, [good, bad] * 50))
+    assert out[0::2] == [(64, 64)] * 50 and all("extraneous bytes" in o for o in out[1::2])
+    os.write(2, b"still here\n")
+    assert "still here" in capfd.readouterr().err

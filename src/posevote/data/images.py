@@ -20,6 +20,7 @@ import os
 import re
 import sys
 import tempfile
+import threading
 import warnings
 from pathlib import Path
 
@@ -160,6 +161,7 @@ def _check_file(path: Path, data: bytes) -> None:
                              f"({type(exc).__name__}: {exc})") from None
 
 
+_DECODE_LOCK = threading.Lock()
 # Decoder messages about metadata, not pixels: passed on, not refused.
 _BENIGN = re.compile(r"iCCP|sRGB|profile|Unknown field with tag|exif", re.IGNORECASE)
 
@@ -171,9 +173,10 @@ def _decode(path: Path, data: bytes) -> NDArray | None:
     warning on the process's standard error; the pixels it returns are not
     the file's.
     """
-    sys.stderr.flush()
-    saved = os.dup(2)
-    with tempfile.TemporaryFile() as sink:
+    # fd 2 is the process's: one redirection at a time, whatever the threads.
+    with _DECODE_LOCK, tempfile.TemporaryFile() as sink:
+        sys.stderr.flush()
+        saved = os.dup(2)
         os.dup2(sink.fileno(), 2)
         try:
             raw = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)

@@ -406,6 +406,18 @@ def read_coil(folder: str | Path, *, objects: Sequence[int],
 
 # --- EPFL Multi-View Car ------------------------------------------------------
 
+def _epfl_path(folder: Path, meta: Path, pattern: str, values: tuple[int, ...]) -> Path:
+    """A file named by a pattern of ``tripod-seq.txt``, kept inside ``folder``."""
+    try:
+        name = pattern % values
+    except (TypeError, ValueError):
+        raise ValueError(f"{meta}: the file pattern {pattern!r} does not take "
+                         f"{len(values)} number(s)") from None
+    if Path(name).is_absolute() or os.path.normpath(name).split(os.sep)[0] == "..":
+        raise ValueError(f"{meta}: the file pattern {pattern!r} leads outside {folder}")
+    return folder / name
+
+
 def read_epfl(folder: str | Path, *, cars: Sequence[int]) -> TrainingSet:
     """EPFL Multi-View Car (tripod-seq) sequences as a training set.
 
@@ -461,7 +473,7 @@ def read_epfl(folder: str | Path, *, cars: Sequence[int]) -> TrainingSet:
         t = np.array(times[k] if k < len(times) else [])
         if len(t) != n_frames[k]:
             raise ValueError(f"{times_path}, line {car}: {len(t)} times for {n_frames[k]} frames")
-        bbox_path = folder / (bbox_pattern % car)
+        bbox_path = _epfl_path(folder, meta_path, bbox_pattern, (car,))
         if not bbox_path.is_file():
             raise FileNotFoundError(f"EPFL box file not found: {bbox_path}")
         try:
@@ -476,7 +488,7 @@ def read_epfl(folder: str | Path, *, cars: Sequence[int]) -> TrainingSet:
         t_front = t[front[k] - 1]
         t_360 = t[n360[k] - 1] - t[0]
         for j in range(n_frames[k]):
-            img = folder / (name_pattern % (car, j + 1))
+            img = _epfl_path(folder, meta_path, name_pattern, (car, j + 1))
             if not img.is_file():
                 raise FileNotFoundError(f"EPFL image not found: {img}")
             az = (sense[k] * (t[j] - t_front) * 360.0 / t_360) % 360.0
