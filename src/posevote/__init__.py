@@ -9,11 +9,13 @@ and :mod:`posevote.presets` names the tuned configurations.
 
 from typing import Any
 
-__all__ = ["Hypothesis", "NotFittedError", "PoseEstimate", "PoseEstimator", "__version__"]
+__all__ = ["Camera", "Hypothesis", "NotFittedError", "PoseEstimate", "PoseEstimator",
+           "__version__"]
 __version__ = "0.1.0"
 
 _EXPORTS = {"PoseEstimator": "posevote.estimator", "NotFittedError": "posevote.estimator",
-            "Hypothesis": "posevote.results", "PoseEstimate": "posevote.results"}
+            "Hypothesis": "posevote.results", "PoseEstimate": "posevote.results",
+            "Camera": "posevote.camera"}
 
 
 def __getattr__(name: str) -> Any:

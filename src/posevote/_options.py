@@ -9,8 +9,9 @@ the accepted range.
 from __future__ import annotations
 
 import dataclasses
+import inspect
 import math
-from typing import Any, ClassVar
+from typing import Any, ClassVar, TypeVar
 
 import numpy as np
 
@@ -122,3 +123,67 @@ def params_from_json(params: dict[str, Any], groups: dict[str, type],
                 else cls(**value)
         out[name] = value
     return out
+
+
+_P = TypeVar("_P", bound="GroupedParams")
+
+
+class GroupedParams:
+    """scikit-learn's parameter contract for parameters that are option groups.
+
+    ``get_params(deep=True)`` also lists every group field as
+    ``group__field``, and ``set_params`` takes those keys (a frozen group is
+    replaced by a copy with the field changed); ``repr`` shows what differs
+    from the defaults. The parameters are those of ``__init__``; ``_groups``
+    maps each grouped parameter to its option class.
+    """
+
+    _groups: ClassVar[dict[str, type[Options]]] = {}
+
+    @classmethod
+    def _param_names(cls) -> list[str]:
+        return [n for n in inspect.signature(cls.__init__).parameters if n != "self"]
+
+    def get_params(self, deep: bool = True) -> dict[str, Any]:
+        """The parameters; with ``deep``, also every group field as ``group__field``."""
+        out = {name: getattr(self, name) for name in self._param_names()}
+        if deep:
+            for name, value in list(out.items()):
+                if isinstance(value, Options):
+                    out.update({f"{name}__{f.name}": getattr(value, f.name)
+                                for f in dataclasses.fields(value)})
+        return out
+
+    def set_params(self: _P, **params: Any) -> _P:
+        """Set parameters (``name=value``, or ``group__field=value`` inside a group).
+
+        Raises
+        ------
+        ValueError
+            On an unknown name, a field of a group that is off (None), or a
+            value its group refuses.
+        """
+        valid = self._param_names()
+        for key, value in params.items():
+            name, _, field = key.partition("__")
+            if name not in valid:
+                raise ValueError(f"unknown parameter {key!r}; valid: {', '.join(valid)}")
+            if not field:
+                setattr(self, name, value)
+                continue
+            group = getattr(self, name)
+            if not isinstance(group, Options):
+                kind = self._groups[name].__name__ if name in self._groups else "..."
+                raise ValueError(f"{key!r}: {name} is {group!r}; set {name}={kind}(...) first")
+            fields = [f.name for f in dataclasses.fields(group)]
+            if field not in fields:
+                raise ValueError(f"unknown parameter {key!r}; {type(group).__name__} has "
+                                 f"{', '.join(fields)}")
+            setattr(self, name, dataclasses.replace(group, **{field: value}))
+        return self
+
+    def __repr__(self) -> str:
+        defaults = type(self)()
+        changed = [f"{n}={v!r}" for n, v in self.get_params(deep=False).items()
+                   if v != getattr(defaults, n)]
+        return f"{type(self).__name__}({', '.join(changed)})"

@@ -71,6 +71,31 @@ def _input_error(exc: BaseException) -> InputError:
 BAD_INPUT = (OSError, ValueError, TypeError, MemoryError)
 
 
+def _object_height(ts: Any, camera_file: Path | None, height: float | None) -> float | None:
+    """The object's height in metres: given, or from the training camera and distance_m."""
+    import numpy as np
+
+    from posevote.camera import object_height_from_distances, read_camera
+
+    given = len(ts.distances) and bool(np.isfinite(ts.distances).any())
+    if height is not None:
+        if camera_file is not None:
+            raise click.BadParameter("give --object-height-m or --camera, not both",
+                                     param_hint="--camera")
+        return height
+    if camera_file is None:
+        if given:
+            raise click.BadParameter("the distance_m column needs the training camera",
+                                     param_hint="--camera")
+        return None
+    if not given or not np.all(np.isfinite(ts.distances)):
+        raise ValueError("--camera: every row of poses.csv needs a distance_m (the training "
+                         "camera gives the object's height from the distances)")
+    if not np.all(np.isfinite(ts.boxes)):
+        raise ValueError("--camera: the object's height from distance_m needs the box columns")
+    return object_height_from_distances(ts.boxes[:, 3], ts.distances, read_camera(camera_file))
+
+
 def _parse_params(items: tuple[str, ...]) -> dict[str, Any]:
     """``--param`` items as :meth:`PoseEstimator.set_params` keys (``group.field`` -> ``group__field``)."""
     import dataclasses
@@ -147,6 +172,11 @@ def cli() -> None:
 @click.option("--azimuth-step-deg", type=click.FloatRange(0, 180, min_open=True), default=None,
               help="COIL: train on the views at multiples of this step, a multiple of 5 "
                    "(default: all).")
+@click.option("--camera", "camera_file", type=click.Path(path_type=Path), default=None,
+              help="Training camera (JSON: fx, fy, cx, cy or K); with a distance_m column it "
+                   "gives the object's metric height.")
+@click.option("--object-height-m", type=click.FloatRange(0, 1e4, min_open=True), default=None,
+              help="The object's height in metres (its box height), for poses in metres.")
 @click.option("--allow-outside-paths", is_flag=True,
               help="Let poses.csv name images outside SOURCE (absolute or ../ paths).")
 @click.option("--preset", default="default", show_default=True,
@@ -158,7 +188,8 @@ def cli() -> None:
               help="Override a preset value (repeatable), e.g. kernel.position_sigma=2.5 or "
                    "appearance=None.")
 def train(source: Path, output: Path, layout: str, objects: str | None, cars: str | None,
-          azimuth_step_deg: float | None, allow_outside_paths: bool, preset: str,
+          azimuth_step_deg: float | None, camera_file: Path | None,
+          object_height_m: float | None, allow_outside_paths: bool, preset: str,
           no_weights: bool, prune: str, params: tuple[str, ...]) -> None:
     """Train a model from pose-annotated images in SOURCE.
 
@@ -201,12 +232,13 @@ def train(source: Path, output: Path, layout: str, objects: str | None, cars: st
             if not car_list:
                 raise click.BadParameter("--layout epfl needs --cars", param_hint="--cars")
             ts = read_epfl(source, cars=car_list)
+        height = _object_height(ts, camera_file, object_height_m)
         est = PoseEstimator.from_preset(preset, **settings)
         with _progress(len(ts), "features") as bar:
             est.fit(list(ts.images), ts.poses, boxes=ts.boxes,
                     masks=list(ts.masks) if ts.masks else None,
                     instances=list(ts.instances) if ts.instances and all(ts.instances) else None,
-                    category=ts.category, progress=bar.update)
+                    category=ts.category, progress=bar.update, object_height_m=height)
         est.save(output)
     except BAD_INPUT as exc:
         raise _input_error(exc) from None
@@ -230,10 +262,14 @@ def train(source: Path, output: Path, layout: str, objects: str | None, cars: st
 @click.option("--min-score", type=float, default=None, help="Report 'not found' below this.")
 @click.option("--threads", type=click.IntRange(1, 64), default=1, show_default=True,
               help="Threads probing viewpoints at once (faster on several cores; same result).")
+@click.option("--camera", "camera_file", type=click.Path(path_type=Path), default=None,
+              help="Test camera (JSON: fx, fy, cx, cy or K): adds R_cam_obj and t_cam_obj.")
 def estimate(model: Path, image: Path, as_json: bool, overlay: Path | None,
              inplane_range_deg: tuple[float, float] | None, scale_range: tuple[float, float] | None,
-             no_fitting: bool, min_score: float | None, threads: int) -> None:
+             no_fitting: bool, min_score: float | None, threads: int,
+             camera_file: Path | None) -> None:
     """Estimate the pose of the object in IMAGE with a trained MODEL."""
+    from posevote.camera import read_camera
     from posevote.data import read_image
     from posevote.estimator import PoseEstimator
 
@@ -252,8 +288,9 @@ def estimate(model: Path, image: Path, as_json: bool, overlay: Path | None,
         if min_score is not None:
             changes["min_score"] = min_score
         est.set_params(**changes)
+        camera = None if camera_file is None else read_camera(camera_file)
         img = read_image(image)
-        result = est.estimate(img)
+        result = est.estimate(img, camera=camera)
         if overlay is not None:
             from posevote.evaluation.plots import draw_overlay, write_png
 
@@ -268,6 +305,14 @@ def estimate(model: Path, image: Path, as_json: bool, overlay: Path | None,
                    f"in-plane {b.inplane_deg:.1f} deg  scale {b.scale:.3f}  "
                    f"position ({b.position[0]:.1f}, {b.position[1]:.1f}) px  score {b.score:.3f}"
                    f"{'' if b.refined else '  (not refined)'}")
+        if b.R_cam_obj is not None:
+            click.echo("  R_cam_obj " + " ".join(
+                "[" + " ".join(f"{x:+.4f}" for x in row) + "]" for row in b.R_cam_obj))
+        if b.t_cam_obj is not None:
+            click.echo("  t_cam_obj [" + " ".join(f"{x:+.4f}" for x in b.t_cam_obj) + "] m")
+        elif b.R_cam_obj is not None:
+            click.echo("  t_cam_obj unknown: the model has no object height (train with "
+                       "--object-height-m, or --camera and a distance_m column)")
         for rank, m in enumerate(result.modes[1:], start=2):
             click.echo(f"  mode {rank}: azimuth {m.azimuth_deg:.1f} deg  score {m.score:.3f}")
     elif result.top_score > 0:

@@ -8,9 +8,7 @@ Named, tuned configurations are :mod:`posevote.presets`.
 
 from __future__ import annotations
 
-import dataclasses
 import functools
-import inspect
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -19,7 +17,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from posevote._options import Options, params_from_json, params_to_json
+from posevote._options import GroupedParams, Options, params_from_json, params_to_json
+from posevote.camera import Camera, place_all
 from posevote.data.images import load_image
 from posevote.features.edges import EdgeFeatures, EdgeOptions, extract_edges
 from posevote.inference.search import (
@@ -69,7 +68,7 @@ def __getattr__(name: str) -> Any:
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-class PoseEstimator:
+class PoseEstimator(GroupedParams):
     """Continuous 3D pose of an object in a single image (Teney & Piater 2013).
 
     Build one from a named preset (:meth:`from_preset`, :mod:`posevote.presets`)
@@ -116,6 +115,8 @@ class PoseEstimator:
         result, which is the same for every value.
     """
 
+    _groups = OPTION_GROUPS
+
     def __init__(self, *, weights: bool = True, fitting: bool = True,
                  local_refinement: bool = False, morph_views: bool = False,
                  edges: EdgeOptions = EdgeOptions(), kernel: KernelOptions = KernelOptions(),
@@ -147,55 +148,6 @@ class PoseEstimator:
         """
         return cls(**get_preset(name).params).set_params(**overrides)
 
-    # -- scikit-learn's parameter contract ------------------------------------------
-    @classmethod
-    def _param_names(cls) -> list[str]:
-        return [n for n in inspect.signature(cls.__init__).parameters if n != "self"]
-
-    def get_params(self, deep: bool = True) -> dict[str, Any]:
-        """The parameters; with ``deep``, also every group field as ``group__field``."""
-        out = {name: getattr(self, name) for name in self._param_names()}
-        if deep:
-            for name, value in list(out.items()):
-                if isinstance(value, Options):
-                    out.update({f"{name}__{f.name}": getattr(value, f.name)
-                                for f in dataclasses.fields(value)})
-        return out
-
-    def set_params(self, **params: Any) -> PoseEstimator:
-        """Set parameters (``name=value``, or ``group__field=value`` inside a group).
-
-        Raises
-        ------
-        ValueError
-            On an unknown name, a field of a group that is off (None), or a
-            value its group refuses.
-        """
-        valid = self._param_names()
-        for key, value in params.items():
-            name, _, field = key.partition("__")
-            if name not in valid:
-                raise ValueError(f"unknown parameter {key!r}; valid: {', '.join(valid)}")
-            if not field:
-                setattr(self, name, value)
-                continue
-            group = getattr(self, name)
-            if not isinstance(group, Options):
-                kind = OPTION_GROUPS[name].__name__ if name in OPTION_GROUPS else "..."
-                raise ValueError(f"{key!r}: {name} is {group!r}; set {name}={kind}(...) first")
-            fields = [f.name for f in dataclasses.fields(group)]
-            if field not in fields:
-                raise ValueError(f"unknown parameter {key!r}; {type(group).__name__} has "
-                                 f"{', '.join(fields)}")
-            setattr(self, name, dataclasses.replace(group, **{field: value}))
-        return self
-
-    def __repr__(self) -> str:
-        defaults = type(self)()
-        changed = [f"{n}={v!r}" for n, v in self.get_params(deep=False).items()
-                   if v != getattr(defaults, n)]
-        return f"{type(self).__name__}({', '.join(changed)})"
-
     def _validate_params(self) -> None:
         for name in ("weights", "fitting", "local_refinement", "morph_views"):
             if not isinstance(getattr(self, name), (bool, np.bool_)):
@@ -219,8 +171,8 @@ class PoseEstimator:
     def fit(self, images: Sequence[ImageLike], poses: ArrayLike, *,
             boxes: ArrayLike | None = None, masks: Sequence[ImageLike | None] | None = None,
             instances: Sequence[str] | None = None, category: str = "",
-            progress: Callable[[int], None] | None = None, channels: str = "rgb"
-            ) -> PoseEstimator:
+            progress: Callable[[int], None] | None = None, channels: str = "rgb",
+            object_height_m: float | None = None) -> PoseEstimator:
         """Learn the model from pose-annotated images (Sec. II-A, II-C).
 
         Parameters
@@ -242,6 +194,9 @@ class PoseEstimator:
             Called with 1 after each image is processed.
         channels : {"rgb", "bgr"}, optional
             Colour order of array images (``"bgr"``: from ``cv2.imread``).
+        object_height_m : float, optional
+            The object's height in metres (its box height), so that a camera
+            can place it in depth (:mod:`posevote.camera`).
 
         Returns
         -------
@@ -259,7 +214,7 @@ class PoseEstimator:
                               category=category, edges=self.edges, kernel=self.kernel,
                               morph=self.morph_views, prune=resolve_preset(self.prune),
                               appearance=self.appearance is not None, progress=progress,
-                              channels=channels)
+                              channels=channels, object_height_m=object_height_m)
         self._set_trained(trained)
         return self
 
@@ -269,6 +224,7 @@ class PoseEstimator:
         self.viewpoint_kappa_ = trained.viewpoint_kappa
         self.appearance_model_ = trained.appearance
         self.pruning_ = trained.pruning
+        self.object_height_m_ = trained.object_height_m
 
     def _check_fitted(self) -> PoseModel:
         model = getattr(self, "model_", None)
@@ -309,7 +265,8 @@ class PoseEstimator:
         maps = search_maps(feats, img.shape, model, setup)
         return probe(model, maps, setup, progress=progress), feats
 
-    def estimate(self, image: ImageLike, *, channels: str = "rgb") -> PoseEstimate:
+    def estimate(self, image: ImageLike, *, channels: str = "rgb",
+                 camera: Camera | None = None) -> PoseEstimate:
         """Find the object and estimate its continuous pose (Sec. II-B).
 
         Parameters
@@ -318,6 +275,9 @@ class PoseEstimator:
             The test image: grey, RGB or RGBA; 8-bit, 16-bit or float in [0, 1].
         channels : {"rgb", "bgr"}, optional
             Colour order of an array (``"bgr"``: from ``cv2.imread``).
+        camera : Camera, optional
+            The test camera: each hypothesis then holds ``R_cam_obj`` and, if
+            the model knows the object's height, ``t_cam_obj`` (metres).
 
         Returns
         -------
@@ -358,7 +318,9 @@ class PoseEstimator:
         if self.appearance is not None and hyps:
             hyps[0] = appearance_refine(hyps[0], img, model, self._appearance_model(),
                                         self.appearance, verified_box=verified_box)
-        kept = tuple(h for h in hyps if h.score > self.min_score)
+        kept = tuple(place_all([h for h in hyps if h.score > self.min_score], camera,
+                               reference_size_px=model.reference_size,
+                               object_height_m=self.object_height_m_))
         return PoseEstimate(found=bool(kept), best=kept[0] if kept else None, modes=kept,
                             n_test_features=len(feats), seconds=time.perf_counter() - start,
                             instance=instance if kept else "", instance_margin=margin,
@@ -373,7 +335,8 @@ class PoseEstimator:
         save_model(path, TrainedModel(model=model, full_model=self.full_model_,
                                       viewpoint_kappa=self.viewpoint_kappa_,
                                       appearance=getattr(self, "appearance_model_", None),
-                                      pruning=self.pruning_),
+                                      pruning=self.pruning_,
+                                      object_height_m=self.object_height_m_),
                    params_to_json(self.get_params(deep=False)),
                    preset=nearest_preset(self.get_params(deep=False),
                                          type(self)().get_params(deep=False)))

@@ -28,6 +28,12 @@ class Hypothesis:
     refined : bool
         Whether the continuous refinement (distribution fitting) succeeded;
         if not, the pose is the best discrete probe.
+    R_cam_obj : 3x3 tuple of float or None
+        The object's rotation in the camera frame (given a camera;
+        :mod:`posevote.camera`).
+    t_cam_obj : (float, float, float) or None
+        The object's reference point in the camera frame, metres (given a
+        camera and a model that knows the object's height).
     """
 
     azimuth: float
@@ -38,6 +44,16 @@ class Hypothesis:
     box: tuple[float, float, float, float]
     score: float
     refined: bool
+    R_cam_obj: tuple[tuple[float, float, float], ...] | None = None
+    t_cam_obj: tuple[float, float, float] | None = None
+
+    @property
+    def T_cam_obj(self) -> list[list[float]] | None:
+        """The 4x4 rigid transform from ``R_cam_obj`` and ``t_cam_obj`` (None without both)."""
+        if self.R_cam_obj is None or self.t_cam_obj is None:
+            return None
+        return [[*row, t] for row, t in zip(self.R_cam_obj, self.t_cam_obj, strict=True)] \
+            + [[0.0, 0.0, 0.0, 1.0]]
 
     @property
     def azimuth_deg(self) -> float:
@@ -65,6 +81,9 @@ class Hypothesis:
             "box_px": list(self.box),
             "score": self.score,
             "refined": self.refined,
+            **({} if self.R_cam_obj is None else {"R_cam_obj": [list(r) for r in self.R_cam_obj]}),
+            **({} if self.t_cam_obj is None else {"t_cam_obj_m": list(self.t_cam_obj),
+                                                  "T_cam_obj": self.T_cam_obj}),
         }
 
 

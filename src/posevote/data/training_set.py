@@ -18,6 +18,9 @@ column             required  meaning
 ``box_h``
 ``mask``           no        mask image, relative to the folder; non-zero
                              pixels are the object; edges are kept only there
+``distance_m``     no        camera distance to the object's reference point,
+                             metres (with the training camera, gives the
+                             object's metric height: :mod:`posevote.camera`)
 ``instance``       no        instance name (for category models)
 ``category``       no        category name
 =================  ========  ==================================================
@@ -71,6 +74,9 @@ class TrainingSet:
         Instance name of each image.
     category : str
         Category name ("" when not given).
+    distances : ndarray, shape (K,) or (0,)
+        Camera distance of each image, metres (NaN where not given; empty
+        when the column is absent).
     """
 
     images: tuple[Path, ...]
@@ -79,6 +85,7 @@ class TrainingSet:
     masks: tuple[Path | None, ...] = field(default=())
     instances: tuple[str, ...] = field(default=())
     category: str = ""
+    distances: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
 
     def __len__(self) -> int:
         return len(self.images)
@@ -93,6 +100,7 @@ class TrainingSet:
             masks=tuple(self.masks[i] for i in idx) if self.masks else (),
             instances=tuple(self.instances[i] for i in idx) if self.instances else (),
             category=self.category,
+            distances=self.distances[idx] if len(self.distances) else self.distances,
         )
 
     def load_images(self) -> list[NDArray[np.float64]]:
@@ -108,7 +116,7 @@ class TrainingSet:
 #: The columns poses.csv may have; any other column is refused (a misspelt
 #: optional column would otherwise be ignored without a word).
 COLUMNS = ("image", "azimuth_deg", "elevation_deg", "inplane_deg", *_BOX_COLUMNS, "mask",
-           "instance", "category")
+           "distance_m", "instance", "category")
 #: Azimuth and in-plane angles beyond this (degrees) are refused as mistakes.
 MAX_ANGLE_DEG = 720.0
 #: A poses.csv larger than this (bytes) is refused before it is read.
@@ -227,6 +235,7 @@ def read_poses_csv(folder: str | Path, *, allow_outside_paths: bool = False) -> 
     boxes: list[list[float]] = []
     masks: list[Path | None] = []
     instances: list[str] = []
+    distances: list[float] = []
     categories: set[str] = set()
     first_row: dict[str, int] = {}
     for row_number, cells in enumerate(table[1:], start=2):
@@ -280,6 +289,15 @@ def read_poses_csv(folder: str | Path, *, allow_outside_paths: bool = False) -> 
             masks.append(mask_path)
         else:
             masks.append(None)
+        if row.get("distance_m"):
+            distance = _parse_float(row["distance_m"], path=path, row=row_number,
+                                    column="distance_m")
+            if not 0 < distance < 1e5:
+                raise ValueError(f"{path}, row {row_number}: distance_m must be a positive "
+                                 f"number of metres, got {distance:g}")
+            distances.append(distance)
+        else:
+            distances.append(np.nan)
         instances.append(row.get("instance", ""))
         if row.get("category"):
             categories.add(row["category"])
@@ -296,6 +314,7 @@ def read_poses_csv(folder: str | Path, *, allow_outside_paths: bool = False) -> 
         masks=tuple(masks),
         instances=tuple(instances),
         category=categories.pop() if categories else "",
+        distances=np.array(distances) if "distance_m" in columns else np.zeros(0),
     )
 
 
@@ -308,17 +327,22 @@ def write_poses_csv(training_set: TrainingSet, folder: str | Path) -> Path:
     from posevote._io import atomic_write_text
 
     folder = Path(folder)
-    lines = ["image,azimuth_deg,elevation_deg,inplane_deg,box_x,box_y,box_w,box_h,mask,instance,category"]
+    lines = ["image,azimuth_deg,elevation_deg,inplane_deg,box_x,box_y,box_w,box_h,mask,"
+             "distance_m,instance,category"]
     masks = training_set.masks or (None,) * len(training_set)
     instances = training_set.instances or ("",) * len(training_set)
-    for img, pose, box, mask, inst in zip(training_set.images, training_set.poses,
-                                          training_set.boxes, masks, instances, strict=True):
+    distances = training_set.distances if len(training_set.distances) \
+        else np.full(len(training_set), np.nan)
+    for img, pose, box, mask, dist, inst in zip(training_set.images, training_set.poses,
+                                                training_set.boxes, masks, distances, instances,
+                                                strict=True):
         box_text = ",".join("" if np.isnan(b) else f"{b:.3f}" for b in box)
         deg = np.degrees(pose)
         rel = Path(img).resolve().relative_to(folder.resolve())
         mask_text = "" if mask is None else str(Path(mask).resolve().relative_to(folder.resolve()))
+        dist_text = "" if np.isnan(dist) else f"{dist:.6g}"
         lines.append(f"{rel},{deg[0]:.4f},{deg[1]:.4f},{deg[2]:.4f},{box_text},{mask_text},"
-                     f"{inst},{training_set.category}")
+                     f"{dist_text},{inst},{training_set.category}")
     out = folder / POSES_FILE
     atomic_write_text(out, "\n".join(lines) + "\n")
     return out

@@ -5,7 +5,9 @@ A model file is a NumPy ``.npz`` archive of plain numeric arrays plus one
 ``version`` (an integer), the estimator's parameters (``params``, option
 groups as objects of their fields), the preset they come from with the
 parameters that differ from it (``preset``: ``{"name", "overrides"}``, or
-null), the model's names and training facts (``extra``).
+null), the model's names and training facts (``extra``: the pose kernel's
+concentration, the pruning knobs, the descriptor window, the object's
+height in metres or null).
 ``allow_pickle`` is never enabled, so loading a file cannot run code.
 
 Arrays: the features (``xy``, ``theta``, ``view``, ``weight``) and views
@@ -28,6 +30,7 @@ from typing import Any
 import numpy as np
 
 from posevote._io import atomic_open
+from posevote.camera import check_object_height
 from posevote.features.appearance import descriptor_length
 from posevote.model.appearance import AppearanceModel
 from posevote.model.density import PoseModel
@@ -75,6 +78,7 @@ def save_model(path: str | Path, trained: TrainedModel, params: dict[str, Any], 
         "category": model.category,
         "instance_size": list(model.instance_size),
         "extra": {"viewpoint_kappa": trained.viewpoint_kappa, "pruning": trained.pruning,
+                  "object_height_m": trained.object_height_m,
                   "descriptor_window": None if trained.appearance is None
                   else list(trained.appearance.window)},
     }
@@ -218,9 +222,14 @@ def load_model(path: str | Path) -> tuple[TrainedModel, dict[str, Any]]:
             and np.isfinite(kappa) and kappa > 0):
         raise ValueError(f"{path}: corrupt model file (viewpoint_kappa {kappa!r})")
     pruning = extra.get("pruning")
+    try:
+        height = check_object_height(extra.get("object_height_m"))
+    except ValueError as exc:
+        raise ValueError(f"{path}: corrupt model file ({exc})") from None
     trained = TrainedModel(model=model, full_model=model if full_model is None else full_model,
                            viewpoint_kappa=float(kappa), appearance=look,
-                           pruning=pruning if isinstance(pruning, dict) else None)
+                           pruning=pruning if isinstance(pruning, dict) else None,
+                           object_height_m=height)
     return trained, dict(params)
 
 

@@ -18,6 +18,7 @@ import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from posevote.camera import check_object_height
 from posevote.data.images import load_image, read_mask
 from posevote.features.edges import EdgeOptions, box_mask, extract_edges
 from posevote.geometry import box_centre
@@ -45,6 +46,8 @@ class TrainedModel:
         The appearance stages' model, when asked for.
     pruning : dict or None
         The pruning knobs used (None: not pruned).
+    object_height_m : float or None
+        The object's height in metres, when known (:mod:`posevote.camera`).
     """
 
     model: PoseModel
@@ -52,6 +55,7 @@ class TrainedModel:
     viewpoint_kappa: float
     appearance: AppearanceModel | None = None
     pruning: dict[str, Any] | None = None
+    object_height_m: float | None = None
 
 
 #: Pose angles beyond this (radians) are refused: they are degrees given as radians.
@@ -145,12 +149,12 @@ def train_model(images: Sequence[str | Path | NDArray], poses: ArrayLike, *,
                 edges: EdgeOptions = EdgeOptions(), kernel: KernelOptions = KernelOptions(),
                 morph: bool = False, prune: PruningPreset | None = None,
                 appearance: bool = False, progress: Callable[[int], None] | None = None,
-                channels: str = "rgb") -> TrainedModel:
+                channels: str = "rgb", object_height_m: float | None = None) -> TrainedModel:
     """Learn a model from pose-annotated images (Sec. II-A, II-C, III-A).
 
     Parameters
     ----------
-    images, poses, boxes, masks, instances, category, progress, channels
+    images, poses, boxes, masks, instances, category, progress, channels, object_height_m
         As in :meth:`posevote.estimator.PoseEstimator.fit`.
     edges : EdgeOptions
         Edge extraction.
@@ -167,6 +171,7 @@ def train_model(images: Sequence[str | Path | NDArray], poses: ArrayLike, *,
     -------
     TrainedModel
     """
+    height = check_object_height(object_height_m)
     if isinstance(images, (str, Path)):
         raise TypeError(f"images must be a sequence of image paths or arrays, got the single "
                         f"path {str(images)!r} (read a training folder with read_poses_csv)")
@@ -227,4 +232,4 @@ def train_model(images: Sequence[str | Path | NDArray], poses: ArrayLike, *,
         full, prune, position_sigma=kernel.position_sigma, orientation_kappa=ORIENTATION_KAPPA)
     return TrainedModel(model=searched, full_model=full, viewpoint_kappa=kappa,
                         appearance=None if collector is None else collector.finish(sizes),
-                        pruning=None if prune is None else asdict(prune))
+                        pruning=None if prune is None else asdict(prune), object_height_m=height)

@@ -1,0 +1,193 @@
+"""The camera: from an image-space pose to the object's pose in the camera frame.
+
+posevote estimates an image-space pose: viewpoint, in-plane angle, scale
+and the image position of the object's reference point (its box centre).
+With the camera's intrinsics and the object's metric size it becomes the
+rigid transform ``T_cam_obj`` (frames as in :mod:`posevote.geometry`):
+
+* ``R_cam_obj`` is :func:`posevote.geometry.rotation_from_pose`;
+* the depth of the reference point is ``fy * H / (scale * R)``, with ``H``
+  the object's height in metres (``object_height_m``, learnt at training)
+  and ``R`` the model's reference box height in pixels (an object at scale
+  1 appears ``R`` pixels high);
+* ``t_cam_obj`` is the reference point's ray scaled to that depth.
+
+``H`` comes from the training set: a known object height, or the training
+camera with each training view's distance (``distance_m``), as the median
+over the views of ``box height * distance / fy``
+(:func:`object_height_from_distances`). For a category model it is the
+typical instance's height, so a smaller instance is placed farther away.
+
+A camera file is JSON: ``{"fx": ..., "fy": ..., "cx": ..., "cy": ...}``
+(pixels), or ``{"K": [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]}``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from posevote.geometry import rotation_from_pose
+from posevote.results import Hypothesis
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class Camera:
+    """Pinhole intrinsics, pixels (OpenCV's camera frame: +X right, +Y down, +Z forward).
+
+    Attributes
+    ----------
+    fx, fy : float
+        Focal lengths, pixels (positive).
+    cx, cy : float
+        Principal point, pixels.
+    """
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+
+    def __post_init__(self) -> None:
+        for name in ("fx", "fy", "cx", "cy"):
+            value = getattr(self, name)
+            ok = isinstance(value, (int, float, np.integer, np.floating)) \
+                and not isinstance(value, bool) and math.isfinite(float(value)) \
+                and abs(float(value)) < 1e7
+            if not ok or (name in ("fx", "fy") and float(value) <= 0):
+                kind = "a positive number" if name in ("fx", "fy") else "a finite number"
+                raise ValueError(f"Camera.{name} must be {kind} of pixels, got {value!r}")
+            object.__setattr__(self, name, float(value))
+
+    @property
+    def K(self) -> NDArray[np.float64]:
+        """The 3x3 intrinsic matrix."""
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+    @classmethod
+    def from_dict(cls, data: Any, *, where: str = "camera") -> Camera:
+        """A camera from ``{"fx", "fy", "cx", "cy"}`` or ``{"K": 3x3}``.
+
+        Raises
+        ------
+        ValueError
+            On any other shape of data (the message starts with ``where``).
+        """
+        if not isinstance(data, dict):
+            raise ValueError(f"{where}: expected an object with fx, fy, cx, cy or K")
+        try:
+            if "K" in data:
+                if set(data) - {"K", "width", "height"}:
+                    raise ValueError(f"give K or fx, fy, cx, cy, not both ({sorted(data)})")
+                K = np.asarray(data["K"], dtype=np.float64)
+                if K.shape != (3, 3) or not np.allclose(K[2], [0, 0, 1]) \
+                        or K[0, 1] != 0 or K[1, 0] != 0:
+                    raise ValueError(f"K must be [[fx, 0, cx], [0, fy, cy], [0, 0, 1]], got "
+                                     f"{data['K']!r}")
+                return cls(fx=K[0, 0], fy=K[1, 1], cx=K[0, 2], cy=K[1, 2])
+            unknown = sorted(set(data) - {"fx", "fy", "cx", "cy", "width", "height"})
+            missing = [k for k in ("fx", "fy", "cx", "cy") if k not in data]
+            if unknown or missing:
+                raise ValueError(f"expected fx, fy, cx, cy (missing {missing}, unknown "
+                                 f"{unknown})")
+            return cls(fx=data["fx"], fy=data["fy"], cx=data["cx"], cy=data["cy"])
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"{where}: {exc}") from None
+
+    def to_dict(self) -> dict[str, float]:
+        """``{"fx", "fy", "cx", "cy"}``."""
+        return dataclasses.asdict(self)
+
+
+def read_camera(path: str | Path) -> Camera:
+    """Read a camera file (JSON; the module docstring gives the format).
+
+    Raises
+    ------
+    FileNotFoundError
+        If the file does not exist.
+    ValueError
+        If it is not JSON of the camera format (the message names the file).
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"camera file not found: {path}")
+    if path.stat().st_size > 1 << 20:
+        raise ValueError(f"{path}: too large for a camera file")
+    try:
+        data = json.loads(path.read_text(encoding="utf-8-sig"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ValueError(f"{path}: not a JSON camera file ({exc})") from None
+    return Camera.from_dict(data, where=str(path))
+
+
+def object_height_from_distances(box_heights_px: ArrayLike, distances_m: ArrayLike,
+                                 camera: Camera) -> float:
+    """The object's height in metres from training views at known distances.
+
+    Parameters
+    ----------
+    box_heights_px : array_like, shape (K,)
+        Each training view's box height, pixels.
+    distances_m : array_like, shape (K,)
+        The camera's distance to the object's reference point in each view, metres.
+    camera : Camera
+        The training camera.
+
+    Returns
+    -------
+    float
+        The median over the views of ``height * distance / fy``.
+    """
+    h = np.asarray(box_heights_px, dtype=np.float64)
+    d = np.asarray(distances_m, dtype=np.float64)
+    if h.shape != d.shape or h.ndim != 1 or len(h) == 0:
+        raise ValueError(f"distances_m: one distance per training view needed ({len(h)} "
+                         f"views, {d.size} distances)")
+    if not (np.all(np.isfinite(d)) and np.all(d > 0)):
+        raise ValueError("distances_m must be positive, finite numbers of metres")
+    return float(np.median(h * d / camera.fy))
+
+
+def check_object_height(value: Any) -> float | None:
+    """``object_height_m`` as a float, or None; refused unless positive and finite (metres)."""
+    if value is None:
+        return None
+    ok = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
+    if not (ok and math.isfinite(float(value)) and 0 < float(value) < 1e4):
+        raise ValueError(f"object_height_m must be a positive number of metres, got {value!r}")
+    return float(value)
+
+
+def place(hypothesis: Hypothesis, camera: Camera, *, reference_size_px: float,
+          object_height_m: float | None) -> Hypothesis:
+    """The hypothesis with ``R_cam_obj`` and, given the object's height, ``t_cam_obj``."""
+    R = rotation_from_pose(hypothesis.azimuth, hypothesis.elevation, hypothesis.inplane)
+    t: tuple[float, float, float] | None = None
+    if object_height_m is not None:
+        depth = camera.fy * object_height_m / (hypothesis.scale * reference_size_px)
+        u, v = hypothesis.position
+        t = ((u - camera.cx) / camera.fx * depth, (v - camera.cy) / camera.fy * depth, depth)
+    return dataclasses.replace(hypothesis, R_cam_obj=_rows(R), t_cam_obj=t)
+
+
+def place_all(hypotheses: Sequence[Hypothesis], camera: Camera | None, *,
+              reference_size_px: float, object_height_m: float | None) -> list[Hypothesis]:
+    """:func:`place` for every hypothesis (unchanged without a camera)."""
+    if camera is None:
+        return list(hypotheses)
+    if not isinstance(camera, Camera):
+        raise TypeError(f"camera must be a posevote.camera.Camera, got {type(camera).__name__}")
+    return [place(h, camera, reference_size_px=reference_size_px,
+                  object_height_m=object_height_m) for h in hypotheses]
+
+
+def _rows(R: NDArray[np.float64]) -> tuple[tuple[float, float, float], ...]:
+    return tuple((float(r[0]), float(r[1]), float(r[2])) for r in R)

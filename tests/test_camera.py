@@ -1,0 +1,148 @@
+"""The camera: intrinsics, camera files, the object's height and its pose in the camera frame."""
+
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from posevote import PoseEstimator
+from posevote.camera import Camera, object_height_from_distances, place, read_camera
+from posevote.cli import cli
+from posevote.geometry import transform_from_pose
+from posevote.results import Hypothesis
+
+CAM = {"fx": 500.0, "fy": 520.0, "cx": 64.0, "cy": 60.0}
+
+
+def test_camera_from_either_form_and_refused_values():
+    a = Camera.from_dict(CAM)
+    b = Camera.from_dict({"K": [[500, 0, 64], [0, 520, 60], [0, 0, 1]]})
+    assert a == b and a.K[1, 1] == 520.0 and a.to_dict() == CAM
+    for bad, text in [({**CAM, "fx": 0}, "Camera.fx must be a positive"),
+                      ({**CAM, "cy": float("nan")}, "Camera.cy"),
+                      ({"fx": 1, "fy": 1, "cx": 0}, "missing"),
+                      ({**CAM, "fz": 1}, "unknown"),
+                      ({"K": [[1, 0], [0, 1]]}, "K must be"),
+                      ({"K": [[1, 0, 0], [0, 1, 0], [0, 0, 1]], "fx": 1}, "not both"),
+                      ([1, 2], "expected an object")]:
+        with pytest.raises(ValueError, match=text):
+            Camera.from_dict(bad, where="cam.json")
+
+
+def test_read_camera_names_the_file(tmp_path):
+    (tmp_path / "c.json").write_text(json.dumps(CAM))
+    assert read_camera(tmp_path / "c.json").fx == 500.0
+    (tmp_path / "bad.json").write_text("{fx: 1")
+    with pytest.raises(ValueError, match="bad.json: not a JSON camera file"):
+        read_camera(tmp_path / "bad.json")
+    (tmp_path / "neg.json").write_text(json.dumps({**CAM, "fy": -1}))
+    with pytest.raises(ValueError, match="neg.json: Camera.fy"):
+        read_camera(tmp_path / "neg.json")
+    with pytest.raises(FileNotFoundError, match="camera file not found"):
+        read_camera(tmp_path / "none.json")
+
+
+def test_object_height_from_distances():
+    cam = Camera.from_dict(CAM)
+    # A 0.2 m object at 1, 2 and 4 m appears fy * 0.2 / d pixels high.
+    d = np.array([1.0, 2.0, 4.0])
+    assert object_height_from_distances(520.0 * 0.2 / d, d, cam) == pytest.approx(0.2)
+    with pytest.raises(ValueError, match="one distance per training view"):
+        object_height_from_distances([10.0, 20.0], [1.0], cam)
+    with pytest.raises(ValueError, match="positive"):
+        object_height_from_distances([10.0], [0.0], cam)
+
+
+def test_place_agrees_with_the_full_transform():
+    cam = Camera.from_dict(CAM)
+    hyp = Hypothesis(azimuth=0.7, elevation=0.2, inplane=-0.3, scale=0.8, position=(80.0, 50.0),
+                     box=(60.0, 30.0, 40.0, 40.0), score=0.9, refined=True)
+    placed = place(hyp, cam, reference_size_px=100.0, object_height_m=0.25)
+    depth = cam.fy * 0.25 / (0.8 * 100.0)
+    T = transform_from_pose(0.7, 0.2, -0.3, 0.8, 80.0, 50.0, K=cam.K,
+                            reference_depth=depth * 0.8)
+    np.testing.assert_allclose(np.array(placed.T_cam_obj), T, atol=1e-12)
+    R = np.array(placed.R_cam_obj)
+    np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-12)
+    assert placed.t_cam_obj[2] == pytest.approx(depth)
+    d = placed.to_dict()
+    assert len(d["R_cam_obj"]) == 3 and d["t_cam_obj_m"][2] == pytest.approx(depth)
+    unplaced = place(hyp, cam, reference_size_px=100.0, object_height_m=None)
+    assert unplaced.R_cam_obj is not None and unplaced.t_cam_obj is None
+    assert unplaced.T_cam_obj is None and "t_cam_obj_m" not in unplaced.to_dict()
+    assert "R_cam_obj" not in hyp.to_dict()
+
+
+def test_estimate_with_a_camera(synthetic_training, draw, tmp_path):
+    images, az, boxes = synthetic_training
+    est = PoseEstimator().fit(images, az, boxes=boxes, object_height_m=0.3)
+    cam = Camera.from_dict(CAM)
+    plain = est.estimate(draw(np.radians(100)))
+    placed = est.estimate(draw(np.radians(100)), camera=cam)
+    assert plain.best.R_cam_obj is None
+    assert placed.best.azimuth == plain.best.azimuth
+    depth = cam.fy * 0.3 / (placed.best.scale * est.model_.reference_size)
+    assert placed.best.t_cam_obj[2] == pytest.approx(depth)
+    est.save(tmp_path / "m.npz")
+    assert PoseEstimator.load(tmp_path / "m.npz").object_height_m_ == 0.3
+    with pytest.raises(TypeError, match="posevote.camera.Camera"):
+        est.estimate(draw(np.radians(100)), camera=CAM)
+    with pytest.raises(ValueError, match="object_height_m must be a positive"):
+        PoseEstimator().fit(images, az, object_height_m=-1.0)
+
+
+@pytest.fixture()
+def metric_folder(tmp_path, synthetic_training):
+    images, az, boxes = synthetic_training
+    lines = ["image,azimuth_deg,box_x,box_y,box_w,box_h,distance_m"]
+    for i, (img, a, b) in enumerate(zip(images, az, boxes, strict=True)):
+        cv2.imwrite(str(tmp_path / f"v{i:02d}.png"), (img * 255).astype(np.uint8))
+        lines.append(f"v{i:02d}.png,{np.degrees(a):.1f},{b[0]},{b[1]},{b[2]},{b[3]},1.5")
+    (tmp_path / "poses.csv").write_text("\n".join(lines) + "\n")
+    (tmp_path / "cam.json").write_text(json.dumps(CAM))
+    return tmp_path
+
+
+def test_cli_train_and_estimate_in_metres(metric_folder, synthetic_training, draw):
+    _, _, boxes = synthetic_training
+    runner = CliRunner()
+    model = metric_folder / "m.npz"
+    r = runner.invoke(cli, ["train", str(metric_folder), "--camera", str(metric_folder / "cam.json"),
+                            "-o", str(model)])
+    assert r.exit_code == 0, r.output
+    expected = np.median(boxes[:, 3] * 1.5 / CAM["fy"])
+    assert PoseEstimator.load(model).object_height_m_ == pytest.approx(expected)
+    test = metric_folder / "test.png"
+    cv2.imwrite(str(test), (draw(np.radians(100)) * 255).astype(np.uint8))
+    r = runner.invoke(cli, ["estimate", str(model), str(test), "--json", "--camera",
+                            str(metric_folder / "cam.json")])
+    assert r.exit_code == 0, r.output
+    best = json.loads(r.output)["best"]
+    # The test object is drawn as in training: about the training distance.
+    assert best["t_cam_obj_m"][2] == pytest.approx(1.5, rel=0.15)
+    assert np.array(best["T_cam_obj"]).shape == (4, 4)
+    r = runner.invoke(cli, ["estimate", str(model), str(test), "--camera",
+                            str(metric_folder / "cam.json")])
+    assert "R_cam_obj [" in r.output and "t_cam_obj [" in r.output
+
+
+def test_cli_metric_inputs_refused(metric_folder):
+    runner = CliRunner()
+    out = str(metric_folder / "m.npz")
+    r = runner.invoke(cli, ["train", str(metric_folder), "-o", out])
+    assert r.exit_code == 2 and "distance_m column needs the training camera" in r.output
+    r = runner.invoke(cli, ["train", str(metric_folder), "--camera", str(metric_folder / "no.json"),
+                            "-o", out])
+    assert r.exit_code == 1 and "no.json" in r.output
+    r = runner.invoke(cli, ["train", str(metric_folder), "--camera", str(metric_folder / "cam.json"),
+                            "--object-height-m", "0.2", "-o", out])
+    assert r.exit_code == 2 and "not both" in r.output
+    text = (metric_folder / "poses.csv").read_text().replace(",1.5\n", ",-2\n", 1)
+    (metric_folder / "poses.csv").write_text(text)
+    r = runner.invoke(cli, ["train", str(metric_folder), "--camera", str(metric_folder / "cam.json"),
+                            "-o", out])
+    assert r.exit_code == 1 and "row 2: distance_m must be a positive" in r.output
