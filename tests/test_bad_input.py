@@ -349,7 +349,7 @@ def _bad_crc_png(p):
      "extraneous bytes"),
     ("text.png", lambda p: p.write_text("hello"), "cannot decode"),
     ("empty.png", lambda p: p.write_bytes(b""), "cannot decode"),
-    ("folder.png", lambda p: p.mkdir(), "not found"),
+    ("folder.png", lambda p: p.mkdir(), "holds no image"),
 ])
 def test_bad_image_files(model, tmp_path, name, make, text):
     path = tmp_path / name

@@ -250,10 +250,16 @@ def train(source: Path, output: Path, layout: str, objects: str | None, cars: st
 
 @cli.command()
 @click.argument("model", type=click.Path(path_type=Path))
-@click.argument("image", type=click.Path(path_type=Path))
-@click.option("--json", "as_json", is_flag=True, help="Print the estimate as JSON.")
+@click.argument("images", nargs=-1, required=True, type=click.Path(path_type=Path))
+@click.option("--json", "as_json", is_flag=True, help="Print one JSON line per image.")
+@click.option("--csv", "as_csv", is_flag=True,
+              help="Print one CSV row per image (the best mode), with a header.")
+@click.option("--out", "out", type=click.Path(path_type=Path), default=None,
+              help="Results folder (estimates.jsonl, estimates.csv); rerun to resume.")
+@click.option("--jobs", type=click.IntRange(1, 64), default=1, show_default=True,
+              help="Worker processes for the images.")
 @click.option("--overlay", type=click.Path(path_type=Path),
-              help="Write the image with the box and an orientation rose (PNG).")
+              help="Write the image with the box and an orientation rose (one image only).")
 @click.option("--inplane-range-deg", nargs=2, type=float, default=None,
               help="In-plane angles searched, e.g. -30 30.")
 @click.option("--scale-range", nargs=2, type=float, default=None,
@@ -264,17 +270,26 @@ def train(source: Path, output: Path, layout: str, objects: str | None, cars: st
               help="Threads probing viewpoints at once (faster on several cores; same result).")
 @click.option("--camera", "camera_file", type=click.Path(path_type=Path), default=None,
               help="Test camera (JSON: fx, fy, cx, cy or K): adds R_cam_obj and t_cam_obj.")
-def estimate(model: Path, image: Path, as_json: bool, overlay: Path | None,
+def estimate(model: Path, images: tuple[Path, ...], as_json: bool, as_csv: bool,
+             out: Path | None, jobs: int, overlay: Path | None,
              inplane_range_deg: tuple[float, float] | None, scale_range: tuple[float, float] | None,
              no_fitting: bool, min_score: float | None, threads: int,
              camera_file: Path | None) -> None:
-    """Estimate the pose of the object in IMAGE with a trained MODEL."""
+    """Estimate the pose of the object in each of IMAGES (files, folders, glob patterns).
+
+    Exit code 3 when no image holds an object; 1 when an image could not be
+    read (the others are still estimated).
+    """
+    from posevote.batch import expand_images
     from posevote.camera import read_camera
-    from posevote.data import read_image
     from posevote.estimator import PoseEstimator
 
+    if as_json and as_csv:
+        raise click.BadParameter("give --json or --csv, not both", param_hint="--csv")
     if overlay is not None:
         _output_file(overlay, "--overlay", suffixes=IMAGE_SUFFIXES)
+    if out is not None:
+        _output_folder(out, "--out")
     try:
         est = PoseEstimator.load(model)
         changes: dict[str, Any] = {"n_jobs": threads}
@@ -289,22 +304,47 @@ def estimate(model: Path, image: Path, as_json: bool, overlay: Path | None,
             changes["min_score"] = min_score
         est.set_params(**changes)
         camera = None if camera_file is None else read_camera(camera_file)
-        img = read_image(image)
-        result = est.estimate(img, camera=camera)
-        if overlay is not None:
-            from posevote.evaluation.plots import draw_overlay, write_png
-
-            write_png(overlay, draw_overlay(img, result))
+        paths = expand_images(images)
+        if overlay is not None and len(paths) != 1:
+            raise click.BadParameter(f"applies to one image; {len(paths)} given",
+                                     param_hint="--overlay")
+        if len(paths) == 1 and out is None and not as_csv:
+            _estimate_one(est, paths[0], as_json=as_json, overlay=overlay, camera=camera)
+            return
+        changes.pop("n_jobs")
+        found, failed = _estimate_many(model, paths, changes, camera, jobs=jobs, out=out,
+                                       as_json=as_json, as_csv=as_csv, threads=threads)
     except BAD_INPUT as exc:
         raise _input_error(exc) from None
+    if failed:
+        raise InputError(f"{failed} of {len(paths)} images could not be estimated (above)")
+    if not found:
+        sys.exit(EXIT_NOT_FOUND)
+
+
+def _pose_line(b: Any) -> str:
+    return (f"azimuth {b.azimuth_deg:.1f} deg  elevation {b.elevation_deg:.1f} deg  "
+            f"in-plane {b.inplane_deg:.1f} deg  scale {b.scale:.3f}  "
+            f"position ({b.position[0]:.1f}, {b.position[1]:.1f}) px  score {b.score:.3f}"
+            f"{'' if b.refined else '  (not refined)'}")
+
+
+def _estimate_one(est: Any, image: Path, *, as_json: bool, overlay: Path | None,
+                  camera: Any) -> None:
+    """One image: the pose, its modes and (given a camera) its place, as text or JSON."""
+    from posevote.data import read_image
+
+    img = read_image(image)
+    result = est.estimate(img, camera=camera)
+    if overlay is not None:
+        from posevote.evaluation.plots import draw_overlay, write_png
+
+        write_png(overlay, draw_overlay(img, result))
     if as_json:
-        click.echo(json.dumps({"image": str(image), **result.to_dict()}, indent=2))
+        click.echo(json.dumps({"image": str(image), **result.to_dict()}))
     elif result.best is not None:
         b = result.best
-        click.echo(f"azimuth {b.azimuth_deg:.1f} deg  elevation {b.elevation_deg:.1f} deg  "
-                   f"in-plane {b.inplane_deg:.1f} deg  scale {b.scale:.3f}  "
-                   f"position ({b.position[0]:.1f}, {b.position[1]:.1f}) px  score {b.score:.3f}"
-                   f"{'' if b.refined else '  (not refined)'}")
+        click.echo(_pose_line(b))
         if b.R_cam_obj is not None:
             click.echo("  R_cam_obj " + " ".join(
                 "[" + " ".join(f"{x:+.4f}" for x in row) + "]" for row in b.R_cam_obj))
@@ -322,6 +362,44 @@ def estimate(model: Path, image: Path, as_json: bool, overlay: Path | None,
         click.echo("no object found (no edges to vote)", err=True)
     if not result.found:
         sys.exit(EXIT_NOT_FOUND)
+
+
+def _estimate_many(model: Path, paths: list[Path], changes: dict[str, Any], camera: Any, *,
+                   jobs: int, out: Path | None, as_json: bool, as_csv: bool,
+                   threads: int) -> tuple[int, int]:
+    """Several images: one line each as they finish, in order; returns (found, failed)."""
+    import csv
+    import io
+
+    from posevote.batch import CSV_FIELDS, csv_row, estimate_images
+
+    if as_csv:
+        click.echo(",".join(CSV_FIELDS))
+    found = failed = 0
+    with _progress(len(paths), "images") as bar:
+        records = estimate_images(model, paths, settings={**changes, "n_jobs": threads},
+                                  camera=None if camera is None else camera.to_dict(),
+                                  jobs=jobs, out=out, progress=lambda d, t: bar.update(d - bar.n),
+                                  log=lambda m: click.echo(m, err=True))
+        for rec in records:
+            found += bool(rec.get("found"))
+            if "error" in rec:
+                failed += 1
+                click.echo(f"Error: {rec['error']}", err=True)
+            if as_json:
+                click.echo(json.dumps(rec))
+            elif as_csv:
+                line = io.StringIO()
+                csv.writer(line, lineterminator="").writerow(csv_row(rec))
+                click.echo(line.getvalue())
+            elif rec.get("best"):
+                b = rec["best"]
+                click.echo(f"{rec['image']}: azimuth {b['azimuth_deg']:.1f} deg  elevation "
+                           f"{b['elevation_deg']:.1f} deg  in-plane {b['inplane_deg']:.1f} deg  "
+                           f"scale {b['scale']:.3f}  score {b['score']:.3f}")
+            elif "error" not in rec:
+                click.echo(f"{rec['image']}: no object found")
+    return found, failed
 
 
 @cli.command()

@@ -1,0 +1,214 @@
+"""Estimating many images with one model: in order, in worker processes, resumable.
+
+:func:`estimate_images` yields one record per image (``{"image": ..., **PoseEstimate.to_dict()}``),
+in the order given, whatever the number of workers. With an output folder
+the records are appended to ``estimates.jsonl`` one line at a time (flushed
+and synced), so a killed run keeps what it finished and a rerun on the same
+folder skips those images; ``estimates.csv`` (one row per image, the best
+mode) is written atomically at the end. ``batch.json`` holds what the
+records were made with (the model file's hash and the settings): records
+made with another model or other settings are discarded and redone.
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import io
+import json
+import os
+from collections.abc import Callable, Iterator, Sequence
+from pathlib import Path
+from typing import Any
+
+from posevote._io import atomic_write_text
+
+#: Image suffixes taken from a folder.
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp", ".pgm", ".ppm")
+#: The most images one batch may name.
+MAX_IMAGES = 1_000_000
+CSV_FIELDS = ("image", "found", "azimuth_deg", "elevation_deg", "inplane_deg", "scale", "u", "v",
+              "box_x", "box_y", "box_w", "box_h", "score", "top_score", "instance",
+              *(f"R{i}{j}" for i in range(3) for j in range(3)), "tx_m", "ty_m", "tz_m",
+              "seconds")
+
+
+def expand_images(items: Sequence[str | Path]) -> list[Path]:
+    """Image files from paths, folders (their images, sorted) and glob patterns.
+
+    Raises
+    ------
+    FileNotFoundError
+        If an item matches no file.
+    ValueError
+        If the items name no image, or more than :data:`MAX_IMAGES`.
+    """
+    import glob
+
+    out: list[Path] = []
+    for item in items:
+        path = Path(item)
+        if path.is_dir():
+            found = sorted(p for p in path.iterdir()
+                           if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
+            if not found:
+                raise ValueError(f"{path}: the folder holds no image ({', '.join(IMAGE_SUFFIXES)})")
+            out.extend(found)
+        elif path.is_file():
+            out.append(path)
+        elif glob.has_magic(str(item)):
+            matched = sorted(Path(p) for p in glob.glob(str(item)) if Path(p).is_file())
+            if not matched:
+                raise FileNotFoundError(f"{item}: no file matches this pattern")
+            out.extend(matched)
+        else:
+            raise FileNotFoundError(f"image file not found: {path}")
+        if len(out) > MAX_IMAGES:
+            raise ValueError(f"more than {MAX_IMAGES:,} images in one batch")
+    return out
+
+
+_CACHE: dict[str, Any] = {}
+
+
+def estimate_record(model: str, settings: dict[str, Any], camera: dict[str, float] | None,
+                    image: str) -> dict[str, Any]:
+    """One image's record (runs in a worker process; the estimator is cached per process).
+
+    A bad image gives a record with ``error`` instead of stopping the batch.
+    """
+    from posevote.camera import Camera
+    from posevote.estimator import PoseEstimator
+
+    key = json.dumps([model, settings], sort_keys=True, default=str)
+    est = _CACHE.get(key)
+    if est is None:
+        _CACHE.clear()
+        est = _CACHE[key] = PoseEstimator.load(model).set_params(**settings)
+    cam = None if camera is None else Camera(**camera)
+    try:
+        result = est.estimate(image, camera=cam)
+    except (OSError, ValueError, TypeError, MemoryError) as exc:
+        return {"image": image, "found": False, "error": str(exc)}
+    return {"image": image, **result.to_dict()}
+
+
+def csv_row(record: dict[str, Any]) -> list[Any]:
+    """The :data:`CSV_FIELDS` of a record (its best mode)."""
+    best = record.get("best") or {}
+    R = best.get("R_cam_obj") or [[None] * 3] * 3
+    t = best.get("t_cam_obj_m") or [None] * 3
+    pos = best.get("position_px") or [None, None]
+    box = best.get("box_px") or [None] * 4
+    return [record["image"], record.get("found", False), best.get("azimuth_deg"),
+            best.get("elevation_deg"), best.get("inplane_deg"), best.get("scale"), *pos, *box,
+            best.get("score"), record.get("top_score"), record.get("instance"),
+            *(R[i][j] for i in range(3) for j in range(3)), *t, record.get("seconds")]
+
+
+def _fingerprint(model: Path, settings: dict[str, Any], camera: dict[str, float] | None) -> str:
+    digest = hashlib.sha256(model.read_bytes())
+    digest.update(json.dumps([settings, camera], sort_keys=True, default=str).encode())
+    return digest.hexdigest()[:16]
+
+
+def estimate_images(model: str | Path, images: Sequence[Path], *,
+                    settings: dict[str, Any] | None = None,
+                    camera: dict[str, float] | None = None, jobs: int = 1,
+                    out: str | Path | None = None,
+                    progress: Callable[[int, int], None] | None = None,
+                    log: Callable[[str], None] | None = None) -> Iterator[dict[str, Any]]:
+    """Estimate every image; yields the records in the order of ``images``.
+
+    Parameters
+    ----------
+    model : str or Path
+        Model file.
+    images : sequence of Path
+        From :func:`expand_images`.
+    settings : dict, optional
+        :meth:`~posevote.PoseEstimator.set_params` changes.
+    camera : dict, optional
+        The test camera's ``fx, fy, cx, cy``.
+    jobs : int, optional
+        Worker processes.
+    out : str or Path, optional
+        Results folder (see the module docstring); a rerun resumes it.
+    progress : callable, optional
+        Called as ``progress(done, total)``.
+    log : callable, optional
+        Receives one-line messages.
+    """
+    from posevote.evaluation.runner import folder_lock, read_records, repair_records
+
+    log = log if log is not None else (lambda message: None)
+    settings = dict(settings or {})
+    model = Path(model)
+    names = [str(p) for p in images]
+    if out is None:
+        yield from _run(str(model), settings, camera, names, jobs, {}, None, progress)
+        return
+    folder = Path(out)
+    with folder_lock(folder):
+        marker, records_path = folder / "batch.json", folder / "estimates.jsonl"
+        current = _fingerprint(model, settings, camera)
+        try:
+            previous = json.loads(marker.read_text()).get("fingerprint")
+        except (OSError, ValueError, AttributeError):
+            previous = None
+        if previous != current and records_path.is_file():
+            log(f"{folder}: its estimates were made with another model or settings: redone")
+            records_path.unlink()
+        atomic_write_text(marker, json.dumps({"fingerprint": current, "model": str(model)}) + "\n")
+        repair_records(records_path)
+        done = {r["image"]: r for r in read_records(records_path)}
+        if done:
+            log(f"resuming: {sum(n in done for n in names)} of {len(names)} images already done")
+        with records_path.open("a", encoding="utf-8") as fh:
+            yield from _run(str(model), settings, camera, names, jobs, done, fh, progress)
+        text = io.StringIO()
+        writer = csv.writer(text, lineterminator="\n")
+        writer.writerow(CSV_FIELDS)
+        final = {r["image"]: r for r in read_records(records_path)}
+        writer.writerows(csv_row(final[n]) for n in names if n in final)
+        atomic_write_text(folder / "estimates.csv", text.getvalue())
+
+
+def _run(model: str, settings: dict[str, Any], camera: dict[str, float] | None,
+         names: list[str], jobs: int, done: dict[str, dict[str, Any]], fh: Any,
+         progress: Callable[[int, int], None] | None) -> Iterator[dict[str, Any]]:
+    """The records of ``names`` in order: finished ones from ``done``, the others estimated."""
+    from posevote.evaluation.runner import worker_pool
+
+    todo = [n for n in names if n not in done]
+    count = len(names) - len(todo)
+    if progress is not None:
+        progress(count, len(names))
+    import cv2
+
+    pool = worker_pool(jobs) if jobs > 1 and len(todo) > 1 else None
+    cv_threads = cv2.getNumThreads()
+    if pool is not None:
+        cv2.setNumThreads(1)   # before the workers fork: set in a forked child it hangs
+    try:
+        fresh = (pool.map(estimate_record, [model] * len(todo), [settings] * len(todo),
+                          [camera] * len(todo), todo) if pool is not None
+                 else (estimate_record(model, settings, camera, n) for n in todo))
+        new = iter(fresh)
+        for name in names:
+            if name in done:
+                yield done[name]
+                continue
+            rec = next(new)
+            if fh is not None:
+                fh.write(json.dumps(rec) + "\n")
+                fh.flush()
+                os.fsync(fh.fileno())
+            count += 1
+            if progress is not None:
+                progress(count, len(names))
+            yield rec
+    finally:
+        if pool is not None:
+            pool.shutdown(wait=True, cancel_futures=True)
+        cv2.setNumThreads(cv_threads)
