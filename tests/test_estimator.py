@@ -1,3 +1,5 @@
+import json
+
 import numpy as np
 import pytest
 
@@ -324,3 +326,27 @@ def test_presets_build_and_are_recorded(synthetic_training, tmp_path):
     assert header["preset"] == {"name": "cluttered", "overrides": {"max_modes": 2}}
     assert header["params"]["search"]["inplane_range_deg"] == [-30.0, 30.0]
     assert PoseEstimator.load(tmp_path / "m.npz").get_params() == est.get_params()
+
+
+def test_two_objects_in_one_image(fitted_estimator, draw, tmp_path):
+    canvas = np.hstack([draw(np.radians(100)), draw(np.radians(250))])
+    found = fitted_estimator.estimate_objects(canvas, 3)
+    assert len(found) == 2
+    left, right = sorted(found, key=lambda r: r.best.position[0])
+    assert left.best.position[0] < 128 <= right.best.position[0]
+    assert abs(left.best.azimuth_deg - 100) < 15 and abs(right.best.azimuth_deg - 250) < 15
+    assert fitted_estimator.estimate_objects(np.zeros((64, 64)), 2) == []
+    with pytest.raises(ValueError, match="max_objects must be an integer"):
+        fitted_estimator.estimate_objects(canvas, 0)
+    import cv2
+    from click.testing import CliRunner
+
+    from posevote.cli import cli
+
+    fitted_estimator.save(tmp_path / "m.npz")
+    cv2.imwrite(str(tmp_path / "two.png"), (canvas * 255).astype(np.uint8))
+    r = CliRunner().invoke(cli, ["estimate", str(tmp_path / "m.npz"), str(tmp_path / "two.png"),
+                                 "--max-objects", "2", "--json"])
+    assert r.exit_code == 0, r.output
+    lines = [json.loads(line) for line in r.output.splitlines()]
+    assert [rec["object"] for rec in lines] == [0, 1] and all(rec["found"] for rec in lines)

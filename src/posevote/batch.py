@@ -27,7 +27,7 @@ from posevote._io import atomic_write_text
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp", ".pgm", ".ppm")
 #: The most images one batch may name.
 MAX_IMAGES = 1_000_000
-CSV_FIELDS = ("image", "found", "azimuth_deg", "elevation_deg", "inplane_deg", "scale", "u", "v",
+CSV_FIELDS = ("image", "object", "found", "azimuth_deg", "elevation_deg", "inplane_deg", "scale", "u", "v",
               "box_x", "box_y", "box_w", "box_h", "score", "top_score", "instance",
               *(f"R{i}{j}" for i in range(3) for j in range(3)), "tx_m", "ty_m", "tz_m",
               "seconds")
@@ -72,10 +72,13 @@ _CACHE: dict[str, Any] = {}
 
 
 def estimate_record(model: str, settings: dict[str, Any], camera: dict[str, float] | None,
-                    image: str) -> dict[str, Any]:
+                    image: str, max_objects: int = 1) -> dict[str, Any]:
     """One image's record (runs in a worker process; the estimator is cached per process).
 
-    A bad image gives a record with ``error`` instead of stopping the batch.
+    With ``max_objects`` over 1 the record holds ``objects``, one
+    :meth:`~posevote.PoseEstimate.to_dict` per object found
+    (:meth:`~posevote.PoseEstimator.estimate_objects`). A bad image gives a
+    record with ``error`` instead of stopping the batch.
     """
     from posevote.camera import Camera
     from posevote.estimator import PoseEstimator
@@ -87,20 +90,37 @@ def estimate_record(model: str, settings: dict[str, Any], camera: dict[str, floa
         est = _CACHE[key] = PoseEstimator.load(model).set_params(**settings)
     cam = None if camera is None else Camera(**camera)
     try:
+        if max_objects > 1:
+            found = est.estimate_objects(image, max_objects, camera=cam)
+            return {"image": image, "found": bool(found),
+                    "objects": [r.to_dict() for r in found]}
         result = est.estimate(image, camera=cam)
     except (OSError, ValueError, TypeError, MemoryError) as exc:
         return {"image": image, "found": False, "error": str(exc)}
     return {"image": image, **result.to_dict()}
 
 
+def object_records(record: dict[str, Any]) -> list[dict[str, Any]]:
+    """One record per object of an image's record (``object``: 0, 1, ...; one if none found)."""
+    if "objects" not in record:
+        return [{"image": record["image"], "object": 0,
+                 **{k: v for k, v in record.items() if k != "image"}}]
+    if not record["objects"]:
+        return [{"image": record["image"], "object": 0, "found": False,
+                 **({"error": record["error"]} if "error" in record else {})}]
+    return [{"image": record["image"], "object": k, **obj}
+            for k, obj in enumerate(record["objects"])]
+
+
 def csv_row(record: dict[str, Any]) -> list[Any]:
-    """The :data:`CSV_FIELDS` of a record (its best mode)."""
+    """The :data:`CSV_FIELDS` of one object's record (its best mode; :func:`object_records`)."""
     best = record.get("best") or {}
     R = best.get("R_cam_obj") or [[None] * 3] * 3
     t = best.get("t_cam_obj_m") or [None] * 3
     pos = best.get("position_px") or [None, None]
     box = best.get("box_px") or [None] * 4
-    return [record["image"], record.get("found", False), best.get("azimuth_deg"),
+    return [record["image"], record.get("object", 0), record.get("found", False),
+            best.get("azimuth_deg"),
             best.get("elevation_deg"), best.get("inplane_deg"), best.get("scale"), *pos, *box,
             best.get("score"), record.get("top_score"), record.get("instance"),
             *(R[i][j] for i in range(3) for j in range(3)), *t, record.get("seconds")]
@@ -115,7 +135,7 @@ def _fingerprint(model: Path, settings: dict[str, Any], camera: dict[str, float]
 def estimate_images(model: str | Path, images: Sequence[Path], *,
                     settings: dict[str, Any] | None = None,
                     camera: dict[str, float] | None = None, jobs: int = 1,
-                    out: str | Path | None = None,
+                    max_objects: int = 1, out: str | Path | None = None,
                     progress: Callable[[int, int], None] | None = None,
                     log: Callable[[str], None] | None = None) -> Iterator[dict[str, Any]]:
     """Estimate every image; yields the records in the order of ``images``.
@@ -132,6 +152,8 @@ def estimate_images(model: str | Path, images: Sequence[Path], *,
         The test camera's ``fx, fy, cx, cy``.
     jobs : int, optional
         Worker processes.
+    max_objects : int, optional
+        Objects to find per image (:func:`estimate_record`).
     out : str or Path, optional
         Results folder (see the module docstring); a rerun resumes it.
     progress : callable, optional
@@ -146,12 +168,13 @@ def estimate_images(model: str | Path, images: Sequence[Path], *,
     model = Path(model)
     names = [str(p) for p in images]
     if out is None:
-        yield from _run(str(model), settings, camera, names, jobs, {}, None, progress)
+        yield from _run(str(model), settings, camera, max_objects, names, jobs, {}, None,
+                        progress)
         return
     folder = Path(out)
     with folder_lock(folder):
         marker, records_path = folder / "batch.json", folder / "estimates.jsonl"
-        current = _fingerprint(model, settings, camera)
+        current = _fingerprint(model, {**settings, "max_objects": max_objects}, camera)
         try:
             previous = json.loads(marker.read_text()).get("fingerprint")
         except (OSError, ValueError, AttributeError):
@@ -165,17 +188,18 @@ def estimate_images(model: str | Path, images: Sequence[Path], *,
         if done:
             log(f"resuming: {sum(n in done for n in names)} of {len(names)} images already done")
         with records_path.open("a", encoding="utf-8") as fh:
-            yield from _run(str(model), settings, camera, names, jobs, done, fh, progress)
+            yield from _run(str(model), settings, camera, max_objects, names, jobs, done, fh,
+                            progress)
         text = io.StringIO()
         writer = csv.writer(text, lineterminator="\n")
         writer.writerow(CSV_FIELDS)
         final = {r["image"]: r for r in read_records(records_path)}
-        writer.writerows(csv_row(final[n]) for n in names if n in final)
+        writer.writerows(csv_row(o) for n in names if n in final for o in object_records(final[n]))
         atomic_write_text(folder / "estimates.csv", text.getvalue())
 
 
 def _run(model: str, settings: dict[str, Any], camera: dict[str, float] | None,
-         names: list[str], jobs: int, done: dict[str, dict[str, Any]], fh: Any,
+         max_objects: int, names: list[str], jobs: int, done: dict[str, dict[str, Any]], fh: Any,
          progress: Callable[[int, int], None] | None) -> Iterator[dict[str, Any]]:
     """The records of ``names`` in order: finished ones from ``done``, the others estimated."""
     from posevote.evaluation.runner import worker_pool
@@ -192,8 +216,9 @@ def _run(model: str, settings: dict[str, Any], camera: dict[str, float] | None,
         cv2.setNumThreads(1)   # before the workers fork: set in a forked child it hangs
     try:
         fresh = (pool.map(estimate_record, [model] * len(todo), [settings] * len(todo),
-                          [camera] * len(todo), todo) if pool is not None
-                 else (estimate_record(model, settings, camera, n) for n in todo))
+                          [camera] * len(todo), todo, [max_objects] * len(todo))
+                 if pool is not None
+                 else (estimate_record(model, settings, camera, n, max_objects) for n in todo))
         new = iter(fresh)
         for name in names:
             if name in done:

@@ -258,6 +258,8 @@ def train(source: Path, output: Path, layout: str, objects: str | None, cars: st
               help="Results folder (estimates.jsonl, estimates.csv); rerun to resume.")
 @click.option("--jobs", type=click.IntRange(1, 64), default=1, show_default=True,
               help="Worker processes for the images.")
+@click.option("--max-objects", type=click.IntRange(1, 100), default=1, show_default=True,
+              help="Objects to find per image (one line each).")
 @click.option("--overlay", type=click.Path(path_type=Path),
               help="Write the image with the box and an orientation rose (one image only).")
 @click.option("--inplane-range-deg", nargs=2, type=float, default=None,
@@ -271,7 +273,7 @@ def train(source: Path, output: Path, layout: str, objects: str | None, cars: st
 @click.option("--camera", "camera_file", type=click.Path(path_type=Path), default=None,
               help="Test camera (JSON: fx, fy, cx, cy or K): adds R_cam_obj and t_cam_obj.")
 def estimate(model: Path, images: tuple[Path, ...], as_json: bool, as_csv: bool,
-             out: Path | None, jobs: int, overlay: Path | None,
+             out: Path | None, jobs: int, max_objects: int, overlay: Path | None,
              inplane_range_deg: tuple[float, float] | None, scale_range: tuple[float, float] | None,
              no_fitting: bool, min_score: float | None, threads: int,
              camera_file: Path | None) -> None:
@@ -308,12 +310,13 @@ def estimate(model: Path, images: tuple[Path, ...], as_json: bool, as_csv: bool,
         if overlay is not None and len(paths) != 1:
             raise click.BadParameter(f"applies to one image; {len(paths)} given",
                                      param_hint="--overlay")
-        if len(paths) == 1 and out is None and not as_csv:
+        if len(paths) == 1 and out is None and not as_csv and max_objects == 1:
             _estimate_one(est, paths[0], as_json=as_json, overlay=overlay, camera=camera)
             return
         changes.pop("n_jobs")
         found, failed = _estimate_many(model, paths, changes, camera, jobs=jobs, out=out,
-                                       as_json=as_json, as_csv=as_csv, threads=threads)
+                                       as_json=as_json, as_csv=as_csv, threads=threads,
+                                       max_objects=max_objects)
     except BAD_INPUT as exc:
         raise _input_error(exc) from None
     if failed:
@@ -366,12 +369,12 @@ def _estimate_one(est: Any, image: Path, *, as_json: bool, overlay: Path | None,
 
 def _estimate_many(model: Path, paths: list[Path], changes: dict[str, Any], camera: Any, *,
                    jobs: int, out: Path | None, as_json: bool, as_csv: bool,
-                   threads: int) -> tuple[int, int]:
-    """Several images: one line each as they finish, in order; returns (found, failed)."""
+                   threads: int, max_objects: int) -> tuple[int, int]:
+    """Several images: one line per image and object, in order; returns (found, failed)."""
     import csv
     import io
 
-    from posevote.batch import CSV_FIELDS, csv_row, estimate_images
+    from posevote.batch import CSV_FIELDS, csv_row, estimate_images, object_records
 
     if as_csv:
         click.echo(",".join(CSV_FIELDS))
@@ -379,26 +382,31 @@ def _estimate_many(model: Path, paths: list[Path], changes: dict[str, Any], came
     with _progress(len(paths), "images") as bar:
         records = estimate_images(model, paths, settings={**changes, "n_jobs": threads},
                                   camera=None if camera is None else camera.to_dict(),
-                                  jobs=jobs, out=out, progress=lambda d, t: bar.update(d - bar.n),
+                                  jobs=jobs, max_objects=max_objects, out=out,
+                                  progress=lambda d, t: bar.update(d - bar.n),
                                   log=lambda m: click.echo(m, err=True))
-        for rec in records:
-            found += bool(rec.get("found"))
-            if "error" in rec:
+        for image_record in records:
+            found += bool(image_record.get("found"))
+            if "error" in image_record:
                 failed += 1
-                click.echo(f"Error: {rec['error']}", err=True)
-            if as_json:
-                click.echo(json.dumps(rec))
-            elif as_csv:
-                line = io.StringIO()
-                csv.writer(line, lineterminator="").writerow(csv_row(rec))
-                click.echo(line.getvalue())
-            elif rec.get("best"):
-                b = rec["best"]
-                click.echo(f"{rec['image']}: azimuth {b['azimuth_deg']:.1f} deg  elevation "
-                           f"{b['elevation_deg']:.1f} deg  in-plane {b['inplane_deg']:.1f} deg  "
-                           f"scale {b['scale']:.3f}  score {b['score']:.3f}")
-            elif "error" not in rec:
-                click.echo(f"{rec['image']}: no object found")
+                click.echo(f"Error: {image_record['error']}", err=True)
+            for rec in object_records(image_record):
+                if as_json:
+                    click.echo(json.dumps(rec))
+                elif as_csv:
+                    line = io.StringIO()
+                    csv.writer(line, lineterminator="").writerow(csv_row(rec))
+                    click.echo(line.getvalue())
+                elif rec.get("best"):
+                    b = rec["best"]
+                    label = f" object {rec['object'] + 1}" if max_objects > 1 else ""
+                    click.echo(f"{rec['image']}{label}: azimuth {b['azimuth_deg']:.1f} deg  "
+                               f"elevation {b['elevation_deg']:.1f} deg  in-plane "
+                               f"{b['inplane_deg']:.1f} deg  scale {b['scale']:.3f}  position "
+                               f"({b['position_px'][0]:.1f}, {b['position_px'][1]:.1f}) px  "
+                               f"score {b['score']:.3f}")
+                elif "error" not in rec:
+                    click.echo(f"{rec['image']}: no object found")
     return found, failed
 
 

@@ -20,7 +20,8 @@ from numpy.typing import ArrayLike, NDArray
 from posevote._options import GroupedParams, Options, params_from_json, params_to_json
 from posevote.camera import Camera, place_all
 from posevote.data.images import load_image
-from posevote.features.edges import EdgeFeatures, EdgeOptions, extract_edges
+from posevote.features.edges import EdgeFeatures, EdgeOptions, extract_edges, without_box
+from posevote.geometry import box_iou
 from posevote.inference.search import (
     ProbeSet,
     SearchOptions,
@@ -286,9 +287,40 @@ class PoseEstimator(GroupedParams):
             above ``min_score``.
         """
         start = time.perf_counter()
-        model = self._check_fitted()
+        self._check_fitted()
         self._validate_params()
         feats, img = self._read(image, channels)
+        return self._estimate(feats, img, camera, start)
+
+    def estimate_objects(self, image: ImageLike, max_objects: int, *, channels: str = "rgb",
+                         camera: Camera | None = None) -> list[PoseEstimate]:
+        """Up to ``max_objects`` objects, best first (each as :meth:`estimate` finds one).
+
+        After each object is found, the edges in its box (grown by a tenth)
+        are taken away and the search runs again on the rest; a box that
+        overlaps one already found (IoU over 0.3) is not kept. The list is
+        empty when no object is found.
+        """
+        start = time.perf_counter()
+        self._check_fitted()
+        self._validate_params()
+        if not (isinstance(max_objects, int) and 1 <= max_objects <= 100):
+            raise ValueError(f"max_objects must be an integer in [1, 100], got {max_objects!r}")
+        feats, img = self._read(image, channels)
+        found: list[PoseEstimate] = []
+        while len(found) < max_objects and len(feats):
+            result = self._estimate(feats, img, camera, start)
+            if result.best is None:
+                break
+            if all(box_iou(result.best.box, f.best.box) <= 0.3 for f in found if f.best):
+                found.append(result)
+            feats = without_box(feats, result.best.box, grow=0.1)
+            start = time.perf_counter()
+        return found
+
+    def _estimate(self, feats: EdgeFeatures, img: NDArray[np.float64], camera: Camera | None,
+                  start: float) -> PoseEstimate:
+        model = self._check_fitted()
         shape = (int(img.shape[0]), int(img.shape[1]))
         setup = self.setup()
         maps = search_maps(feats, shape, model, setup)

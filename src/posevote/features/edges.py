@@ -186,6 +186,16 @@ def extract_edges(image: NDArray, options: EdgeOptions, *, training: bool,
                         spacing=options.spacing, max_points=budget, mask=mask)
 
 
+def without_box(features: EdgeFeatures, box: tuple[float, float, float, float] | NDArray,
+                grow: float = 0.0) -> EdgeFeatures:
+    """The features outside a box ``(x, y, w, h)`` grown by ``grow`` of its size on each side."""
+    x, y, w, h = (float(b) for b in box)
+    x, y, w, h = x - grow * w, y - grow * h, w * (1 + 2 * grow), h * (1 + 2 * grow)
+    u, v = features.xy[:, 0], features.xy[:, 1]
+    keep = ~((u >= x) & (u <= x + w) & (v >= y) & (v <= y + h))
+    return EdgeFeatures(xy=features.xy[keep], theta=features.theta[keep])
+
+
 def box_mask(shape: tuple[int, int], box: NDArray[np.float64], *, margin: float = 2.0
              ) -> NDArray[np.bool_]:
     """Boolean mask of the pixels inside ``box = (x, y, w, h)`` grown by ``margin``."""
