@@ -237,3 +237,37 @@ def _run(model: str, settings: dict[str, Any], camera: dict[str, float] | None,
         if pool is not None:
             pool.shutdown(wait=True, cancel_futures=True)
         cv2.setNumThreads(cv_threads)
+
+
+def estimate_bop_scene(estimator: Any, scene: str | Path, *, obj_id: int, max_objects: int = 1,
+                       progress: Callable[[int], None] | None = None) -> list[str]:
+    """BOP results lines (:func:`posevote.data.bop.results_rows`) for every image of a scene.
+
+    Each image is estimated with its own camera (``scene_camera.json``); an
+    object is written when its translation is known (a model that knows the
+    object's height).
+    """
+    import time
+
+    from posevote.camera import Camera
+    from posevote.data.bop import _image_file, _load_json, _numbers, results_rows
+
+    folder = Path(scene)
+    scene_id = int(folder.name) if folder.name.isdigit() else 0
+    cams = _load_json(folder / "scene_camera.json")
+    lines = []
+    for key in sorted((k for k in cams if k.isdigit()), key=int):
+        where = f"{folder / 'scene_camera.json'}, image {key}"
+        K = _numbers(cams[key].get("cam_K") if isinstance(cams[key], dict) else None, 9,
+                     where=where)
+        camera = Camera.from_dict({"K": K.reshape(3, 3).tolist()}, where=where)
+        start = time.perf_counter()
+        found = estimator.estimate_objects(_image_file(folder, "rgb", f"{int(key):06d}"),
+                                           max_objects, camera=camera)
+        seconds = time.perf_counter() - start
+        lines += [results_rows(scene_id, int(key), obj_id, r.best.score, r.best.R_cam_obj,
+                               r.best.t_cam_obj, seconds)
+                  for r in found if r.best is not None and r.best.t_cam_obj is not None]
+        if progress is not None:
+            progress(1)
+    return lines

@@ -129,7 +129,7 @@ def read_camera(path: str | Path) -> Camera:
 
 
 def object_height_from_distances(box_heights_px: ArrayLike, distances_m: ArrayLike,
-                                 camera: Camera) -> float:
+                                 camera: Camera | Sequence[Camera]) -> float:
     """The object's height in metres from training views at known distances.
 
     Parameters
@@ -138,8 +138,8 @@ def object_height_from_distances(box_heights_px: ArrayLike, distances_m: ArrayLi
         Each training view's box height, pixels.
     distances_m : array_like, shape (K,)
         The camera's distance to the object's reference point in each view, metres.
-    camera : Camera
-        The training camera.
+    camera : Camera or sequence of Camera
+        The training camera, or each view's.
 
     Returns
     -------
@@ -153,7 +153,12 @@ def object_height_from_distances(box_heights_px: ArrayLike, distances_m: ArrayLi
                          f"views, {d.size} distances)")
     if not (np.all(np.isfinite(d)) and np.all(d > 0)):
         raise ValueError("distances_m must be positive, finite numbers of metres")
-    return float(np.median(h * d / camera.fy))
+    fy = (np.full(len(h), camera.fy) if isinstance(camera, Camera)
+          else np.array([c.fy for c in camera], dtype=np.float64))
+    if fy.shape != h.shape:
+        raise ValueError(f"camera: one camera per training view needed ({len(h)} views, "
+                         f"{len(fy)} cameras)")
+    return float(np.median(h * d / fy))
 
 
 def check_object_height(value: Any) -> float | None:

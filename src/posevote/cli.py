@@ -1,4 +1,4 @@
-"""Command-line interface: ``posevote train | estimate | presets | weights | evaluate | demo``.
+"""Command-line interface: ``posevote train | estimate | bop | presets | weights | evaluate | demo``.
 
 Exit codes
 ----------
@@ -69,6 +69,21 @@ def _input_error(exc: BaseException) -> InputError:
 
 #: What the commands turn into ``Error:`` messages (exit 1) rather than tracebacks.
 BAD_INPUT = (OSError, ValueError, TypeError, MemoryError)
+
+
+def _bop_training(source: Path, objects: str | None, height: float | None) -> tuple[Any, float]:
+    """A BOP scene's views of one object, and its height (given, or from the scene's cameras)."""
+    from posevote.camera import object_height_from_distances
+    from posevote.data.bop import read_bop_scene
+
+    obj = _int_list(objects, option="--objects")
+    if not obj or len(obj) != 1:
+        raise click.BadParameter("--layout bop needs one obj_id", param_hint="--objects")
+    scene = read_bop_scene(source, obj_id=obj[0])
+    ts = scene.training_set
+    if height is None:
+        height = object_height_from_distances(ts.boxes[:, 3], ts.distances, scene.cameras)
+    return ts, height
 
 
 def _object_height(ts: Any, camera_file: Path | None, height: float | None) -> float | None:
@@ -165,9 +180,10 @@ def cli() -> None:
 @click.argument("source", type=click.Path(path_type=Path))
 @click.option("-o", "--output", "output", required=True, type=click.Path(path_type=Path),
               help="Model file to write (.npz).")
-@click.option("--layout", type=click.Choice(["csv", "coil", "epfl"]), default="csv",
-              show_default=True, help="SOURCE is a folder with poses.csv, COIL-100 or EPFL tripod-seq.")
-@click.option("--objects", help="COIL object numbers, e.g. 6,8,23.")
+@click.option("--layout", type=click.Choice(["csv", "coil", "epfl", "bop"]), default="csv",
+              show_default=True, help="SOURCE is a folder with poses.csv, COIL-100, EPFL "
+                                      "tripod-seq or a BOP scene folder.")
+@click.option("--objects", help="COIL object numbers, e.g. 6,8,23; BOP: one obj_id.")
 @click.option("--cars", help="EPFL car numbers, e.g. 1-5.")
 @click.option("--azimuth-step-deg", type=click.FloatRange(0, 180, min_open=True), default=None,
               help="COIL: train on the views at multiples of this step, a multiple of 5 "
@@ -204,7 +220,8 @@ def train(source: Path, output: Path, layout: str, objects: str | None, cars: st
     _output_file(output, "-o")
     for value, option, wanted in ((objects, "--objects", "coil"), (cars, "--cars", "epfl"),
                                   (azimuth_step_deg, "--azimuth-step-deg", "coil")):
-        if value is not None and layout != wanted:
+        if value is not None and layout != wanted and not (option == "--objects"
+                                                           and layout == "bop"):
             raise click.BadParameter(f"applies to --layout {wanted} only", param_hint=option)
     if allow_outside_paths and layout != "csv":
         raise click.BadParameter("applies to --layout csv only", param_hint="--allow-outside-paths")
@@ -218,6 +235,7 @@ def train(source: Path, output: Path, layout: str, objects: str | None, cars: st
         settings["weights"] = False
     if prune != "none":
         settings["prune"] = prune
+    height: float | None = None
     try:
         if layout == "csv":
             ts = read_poses_csv(source, allow_outside_paths=allow_outside_paths)
@@ -227,12 +245,15 @@ def train(source: Path, output: Path, layout: str, objects: str | None, cars: st
                 raise click.BadParameter("--layout coil needs --objects", param_hint="--objects")
             azimuths = None if azimuth_step_deg is None else np.arange(0, 360, azimuth_step_deg)
             ts = read_coil(source, objects=obj, azimuths_deg=azimuths)
+        elif layout == "bop":
+            ts, height = _bop_training(source, objects, object_height_m)
         else:
             car_list = _int_list(cars, option="--cars")
             if not car_list:
                 raise click.BadParameter("--layout epfl needs --cars", param_hint="--cars")
             ts = read_epfl(source, cars=car_list)
-        height = _object_height(ts, camera_file, object_height_m)
+        if layout != "bop":
+            height = _object_height(ts, camera_file, object_height_m)
         est = PoseEstimator.from_preset(preset, **settings)
         with _progress(len(ts), "features") as bar:
             est.fit(list(ts.images), ts.poses, boxes=ts.boxes,
@@ -408,6 +429,37 @@ def _estimate_many(model: Path, paths: list[Path], changes: dict[str, Any], came
                 elif "error" not in rec:
                     click.echo(f"{rec['image']}: no object found")
     return found, failed
+
+
+@cli.command()
+@click.argument("model", type=click.Path(path_type=Path))
+@click.argument("scenes", nargs=-1, required=True, type=click.Path(path_type=Path))
+@click.option("--obj-id", type=click.IntRange(0, 10**6), required=True,
+              help="The BOP object id the model was trained on.")
+@click.option("-o", "--output", required=True, type=click.Path(path_type=Path),
+              help="BOP results CSV to write (scene_id,im_id,obj_id,score,R,t,time).")
+@click.option("--max-objects", type=click.IntRange(1, 100), default=1, show_default=True,
+              help="Objects to find per image.")
+def bop(model: Path, scenes: tuple[Path, ...], obj_id: int, output: Path,
+        max_objects: int) -> None:
+    """Estimate every image of BOP SCENES (folders) and write the BOP results CSV."""
+    from posevote.batch import estimate_bop_scene
+    from posevote.data.bop import write_bop_results
+    from posevote.estimator import PoseEstimator
+
+    _output_file(output, "-o", suffixes=(".csv",))
+    try:
+        est = PoseEstimator.load(model)
+        if est.object_height_m_ is None:
+            raise ValueError(f"{model}: the model does not know the object's height, so it "
+                             "cannot give t; train it with --layout bop or --object-height-m")
+        lines: list[str] = []
+        for scene in scenes:
+            lines += estimate_bop_scene(est, scene, obj_id=obj_id, max_objects=max_objects)
+        write_bop_results(output, lines)
+    except BAD_INPUT as exc:
+        raise _input_error(exc) from None
+    click.echo(f"{len(lines)} estimates of object {obj_id} in {len(scenes)} scene(s) -> {output}")
 
 
 @cli.command()

@@ -1,0 +1,229 @@
+"""The BOP layout (Hodaň et al., Benchmark for 6D Object Pose Estimation): read scenes, write results.
+
+A BOP scene folder holds ``rgb/IMID.png`` (or ``.jpg``), ``mask_visib/IMID_GTIDX.png``,
+``scene_gt.json`` (per image id, a list of ``{"cam_R_m2c": 9 numbers,
+"cam_t_m2c": 3 numbers in mm, "obj_id": int}``), ``scene_camera.json`` (per image
+id, ``{"cam_K": 9 numbers, "depth_scale": ...}``) and ``scene_gt_info.json``
+(per image id, one ``{"bbox_obj", "bbox_visib", "visib_fract", ...}`` per
+annotation, boxes as ``[x, y, w, h]`` pixels). Ids are written with six digits.
+
+As a training set, each annotation of the object becomes a view: its pose
+is ``cam_R_m2c`` read in posevote's angles (:func:`posevote.geometry.pose_from_rotation`),
+its box ``bbox_visib``, its mask ``mask_visib``, its distance ``|cam_t_m2c|``.
+Results are written in the BOP results CSV,
+``scene_id,im_id,obj_id,score,R,t,time``: ``R`` nine numbers row-major and ``t``
+three in millimetres, separated by spaces, ``time`` the seconds spent on the image
+(the same for all its rows).
+
+posevote's ``t_cam_obj`` is its reference point (the box centre's ray at the
+object's depth), not the mesh origin of a BOP model: the two differ by the
+origin's offset from the box centre.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from posevote.camera import Camera
+from posevote.data.training_set import TrainingSet
+from posevote.geometry import pose_from_rotation
+
+#: The header of the BOP results CSV.
+RESULTS_HEADER = "scene_id,im_id,obj_id,score,R,t,time"
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class BopScene:
+    """The views of one object in a BOP scene.
+
+    Attributes
+    ----------
+    training_set : TrainingSet
+        Images, poses (radians), boxes, masks and distances (metres).
+    cameras : tuple of Camera
+        Each view's camera.
+    scene_id : int
+    im_ids : tuple of int
+        Each view's image id.
+    rotations : ndarray, shape (K, 3, 3)
+        ``cam_R_m2c`` of each view.
+    translations_m : ndarray, shape (K, 3)
+        ``cam_t_m2c`` of each view, metres.
+    """
+
+    training_set: TrainingSet
+    cameras: tuple[Camera, ...]
+    scene_id: int
+    im_ids: tuple[int, ...]
+    rotations: NDArray[np.float64]
+    translations_m: NDArray[np.float64]
+
+
+def _load_json(path: Path) -> dict[str, Any]:
+    if not path.is_file():
+        raise FileNotFoundError(f"BOP file not found: {path}")
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ValueError(f"{path}: not JSON ({exc})") from None
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: expected an object keyed by image id")
+    return data
+
+
+def _numbers(value: Any, n: int, *, where: str) -> NDArray[np.float64]:
+    try:
+        arr = np.asarray(value, dtype=np.float64).ravel()
+    except (TypeError, ValueError):
+        arr = np.zeros(0)
+    if arr.size != n or not np.all(np.isfinite(arr)):
+        raise ValueError(f"{where}: expected {n} finite numbers, got {value!r}")
+    return arr
+
+
+def _image_file(folder: Path, kind: str, stem: str) -> Path:
+    for suffix in (".png", ".jpg", ".jpeg", ".tif"):
+        path = folder / kind / f"{stem}{suffix}"
+        if path.is_file():
+            return path
+    raise FileNotFoundError(f"BOP image not found: {folder / kind / stem}.png")
+
+
+def read_bop_scene(scene: str | Path, *, obj_id: int, min_visible: float = 0.1) -> BopScene:
+    """The views of object ``obj_id`` in a BOP scene folder (the module docstring).
+
+    Parameters
+    ----------
+    scene : str or Path
+        The scene folder (``.../train/000001``).
+    obj_id : int
+        The object.
+    min_visible : float, optional
+        Annotations whose visible fraction is below this are skipped.
+
+    Raises
+    ------
+    FileNotFoundError, ValueError
+        On missing or malformed files (the message names the file and image id).
+    """
+    folder = Path(scene)
+    if not folder.is_dir():
+        raise FileNotFoundError(f"BOP scene folder not found: {folder}")
+    try:
+        scene_id = int(folder.name)
+    except ValueError:
+        raise ValueError(f"{folder}: a BOP scene folder is named by its id (000001)") from None
+    gt = _load_json(folder / "scene_gt.json")
+    cams = _load_json(folder / "scene_camera.json")
+    info_path = folder / "scene_gt_info.json"
+    info = _load_json(info_path)
+    images, poses, boxes, masks, dists, cameras, im_ids, rots, trans = ([] for _ in range(9))
+    for key in sorted(gt, key=lambda k: int(k) if k.isdigit() else -1):
+        if not key.isdigit():
+            raise ValueError(f"{folder / 'scene_gt.json'}: image id {key!r} is not a number")
+        where = f"{folder / 'scene_gt.json'}, image {key}"
+        annotations = gt[key]
+        if not isinstance(annotations, list):
+            raise ValueError(f"{where}: expected a list of annotations")
+        cam_entry = cams.get(key)
+        if not isinstance(cam_entry, dict) or "cam_K" not in cam_entry:
+            raise ValueError(f"{folder / 'scene_camera.json'}, image {key}: no cam_K")
+        K = _numbers(cam_entry["cam_K"], 9, where=f"{folder / 'scene_camera.json'}, image {key}")
+        camera = Camera.from_dict({"K": K.reshape(3, 3).tolist()},
+                                  where=f"{folder / 'scene_camera.json'}, image {key}")
+        infos = info.get(key, [])
+        for index, ann in enumerate(annotations):
+            if not isinstance(ann, dict) or ann.get("obj_id") != obj_id:
+                continue
+            R = _numbers(ann.get("cam_R_m2c"), 9, where=f"{where}, cam_R_m2c").reshape(3, 3)
+            if not (np.allclose(R @ R.T, np.eye(3), atol=1e-3) and np.linalg.det(R) > 0):
+                raise ValueError(f"{where}, annotation {index}: cam_R_m2c is not a rotation")
+            t = _numbers(ann.get("cam_t_m2c"), 3, where=f"{where}, cam_t_m2c") / 1000.0
+            entry = infos[index] if index < len(infos) and isinstance(infos[index], dict) else {}
+            if float(entry.get("visib_fract", 1.0)) < min_visible:
+                continue
+            box = _numbers(entry.get("bbox_visib", entry.get("bbox_obj")), 4,
+                           where=f"{info_path}, image {key}, annotation {index}")
+            if box[2] <= 0 or box[3] <= 0:
+                continue
+            stem = f"{int(key):06d}"
+            images.append(_image_file(folder, "rgb", stem))
+            mask = folder / "mask_visib" / f"{stem}_{index:06d}.png"
+            masks.append(mask if mask.is_file() else None)
+            poses.append(pose_from_rotation(R))
+            boxes.append(box)
+            dists.append(float(np.linalg.norm(t)))
+            cameras.append(camera)
+            im_ids.append(int(key))
+            rots.append(R)
+            trans.append(t)
+    if not images:
+        raise ValueError(f"{folder}: no visible annotation of object {obj_id}")
+    ts = TrainingSet(images=tuple(images), poses=np.array(poses, dtype=np.float64),
+                     boxes=np.array(boxes), masks=tuple(masks),
+                     instances=(f"obj{obj_id}",) * len(images), distances=np.array(dists))
+    return BopScene(training_set=ts, cameras=tuple(cameras), scene_id=scene_id,
+                    im_ids=tuple(im_ids), rotations=np.array(rots), translations_m=np.array(trans))
+
+
+def results_rows(scene_id: int, im_id: int, obj_id: int, score: float,
+                 R: Sequence[Sequence[float]] | NDArray, t_m: Sequence[float] | NDArray,
+                 seconds: float) -> str:
+    """One line of the BOP results CSV (``t`` given in metres, written in millimetres)."""
+    R_arr = np.asarray(R, dtype=np.float64).reshape(9)
+    t_mm = np.asarray(t_m, dtype=np.float64).reshape(3) * 1000.0
+    if not (np.all(np.isfinite(R_arr)) and np.all(np.isfinite(t_mm)) and math.isfinite(score)):
+        raise ValueError(f"scene {scene_id}, image {im_id}: R, t and score must be finite")
+    return (f"{scene_id},{im_id},{obj_id},{score:.6f},{' '.join(f'{x:.8f}' for x in R_arr)},"
+            f"{' '.join(f'{x:.4f}' for x in t_mm)},{seconds:.4f}")
+
+
+def write_bop_results(path: str | Path, lines: Iterable[str]) -> None:
+    """Write the BOP results CSV (header and :func:`results_rows` lines), atomically."""
+    from posevote._io import atomic_write_text
+
+    atomic_write_text(path, "\n".join([RESULTS_HEADER, *lines]) + "\n")
+
+
+def write_bop_scene(folder: str | Path, images: Sequence[NDArray[np.uint8]],
+                    rotations: Sequence[NDArray], translations_m: Sequence[NDArray],
+                    camera: Camera, *, obj_id: int, boxes: Sequence[Sequence[float]],
+                    masks: Sequence[NDArray[np.bool_]] | None = None) -> Path:
+    """Write views of one object as a BOP scene folder (one annotation per image)."""
+    import cv2
+
+    from posevote._io import atomic_write_text, atomic_write_with
+
+    folder = Path(folder)
+    gt, cams, info = {}, {}, {}
+    def png(path: Path, pixels: NDArray[np.uint8]) -> None:
+        def writer(tmp: Path) -> None:
+            if not cv2.imwrite(str(tmp), pixels):
+                raise OSError(f"could not write {path}")
+
+        atomic_write_with(path, writer)
+
+    for i, img in enumerate(images):
+        stem = f"{i:06d}"
+        png(folder / "rgb" / f"{stem}.png", np.asarray(img))
+        if masks is not None:
+            png(folder / "mask_visib" / f"{stem}_000000.png",
+                (np.asarray(masks[i]) > 0).astype(np.uint8) * 255)
+        gt[str(i)] = [{"cam_R_m2c": np.asarray(rotations[i], dtype=float).ravel().tolist(),
+                       "cam_t_m2c": (np.asarray(translations_m[i], dtype=float) * 1000).tolist(),
+                       "obj_id": obj_id}]
+        cams[str(i)] = {"cam_K": camera.K.ravel().tolist(), "depth_scale": 1.0}
+        box = [float(b) for b in boxes[i]]
+        info[str(i)] = [{"bbox_obj": box, "bbox_visib": box, "visib_fract": 1.0}]
+    for name, data in (("scene_gt.json", gt), ("scene_camera.json", cams),
+                       ("scene_gt_info.json", info)):
+        atomic_write_text(folder / name, json.dumps(data))
+    return folder
