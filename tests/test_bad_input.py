@@ -578,7 +578,8 @@ def test_api_values(fitted_estimator):
 # --- results folders --------------------------------------------------------------------
 
 def test_a_held_results_folder_is_refused(tiny_protocol, tmp_path):
-    from posevote.evaluation.runner import folder_lock, run_protocol
+    from posevote._io import folder_lock
+    from posevote.evaluation.runner import run_protocol
 
     out = tmp_path / "res"
     with folder_lock(out):
@@ -635,7 +636,7 @@ def test_workers_end_with_their_parent(sig):
     if not sys.platform.startswith("linux"):
         pytest.skip("the parent-death signal is Linux's")
     code = ("import time\n"
-            "from posevote.evaluation.runner import worker_pool\n"
+            "from posevote._parallel import worker_pool\n"
             "pool = worker_pool(2)\n"
             "futures = [pool.submit(time.sleep, 60) for _ in range(2)]\n"
             "time.sleep(0.5)\n"

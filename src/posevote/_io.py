@@ -6,18 +6,23 @@ the process's umask (0644 under umask 022), not ``mkstemp``'s private 0600.
 Its name holds the writing process's id (``.NAME.PID.XXXX.tmp``), so that the
 next write of the same file removes the temporaries of writers that died
 (killed mid-write) and leaves those of live ones.
+
+Results folders (``evaluate --out``, ``estimate --out``) are held by one run
+at a time (:func:`folder_lock`) and keep their records as JSON lines,
+appended and synced one at a time (:func:`read_records`, :func:`repair_records`).
 """
 
 from __future__ import annotations
 
 import contextlib
 import glob
+import json
 import os
 import stat
 import tempfile
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import IO
+from typing import IO, Any
 
 
 def _umask() -> int:
@@ -105,3 +110,64 @@ def atomic_write_with(path: str | Path, writer: Callable[[Path], None]) -> None:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
         raise
+
+
+@contextlib.contextmanager
+def folder_lock(out: Path) -> Iterator[None]:
+    """Hold the results folder for this run: a second run on it at once is refused.
+
+    The lock is the kernel's (``flock`` on ``out/.lock``): it is released
+    when the process ends, however it ends, so a killed run leaves none.
+    """
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / ".lock"
+    fh = path.open("a+")
+    try:
+        try:
+            import fcntl
+        except ImportError:   # not POSIX: no lock
+            yield
+            return
+        try:
+            fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            fh.seek(0)
+            holder = fh.read().strip() or "?"
+            raise ValueError(f"{out}: another posevote evaluate (pid {holder}) is writing to "
+                             "this results folder; wait for it to finish or use another --out"
+                             ) from None
+        fh.seek(0)
+        fh.truncate()
+        fh.write(f"{os.getpid()}\n")
+        fh.flush()
+        yield
+    finally:
+        fh.close()
+
+
+def read_records(path: Path) -> list[dict[str, Any]]:
+    """The complete records of a JSON-lines file, one an image (a cut-short last line is dropped)."""
+    if not path.is_file():
+        return []
+    out = []
+    seen: set[str] = set()
+    with path.open("r", encoding="utf-8") as fh:
+        for line in fh:
+            try:
+                rec = json.loads(line)
+            except json.JSONDecodeError:
+                continue
+            # One record an image: a second (from a run that overlapped) is ignored.
+            if isinstance(rec, dict) and "image" in rec and rec["image"] not in seen:
+                seen.add(rec["image"])
+                out.append(rec)
+    return out
+
+
+def repair_records(path: Path) -> None:
+    """Cut a records file back to its last complete line (after an interruption)."""
+    if not path.is_file():
+        return
+    data = path.read_bytes()
+    if data and not data.endswith(b"\n"):
+        os.truncate(path, data.rfind(b"\n") + 1)

@@ -21,7 +21,8 @@ from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
-from posevote._io import atomic_write_text
+from posevote._io import atomic_write_text, folder_lock, read_records, repair_records
+from posevote._parallel import ordered_map
 
 #: Image suffixes taken from a folder.
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp", ".pgm", ".ppm")
@@ -137,7 +138,8 @@ def estimate_images(model: str | Path, images: Sequence[Path], *,
                     camera: dict[str, float] | None = None, jobs: int = 1,
                     max_objects: int = 1, out: str | Path | None = None,
                     progress: Callable[[int, int], None] | None = None,
-                    log: Callable[[str], None] | None = None) -> Iterator[dict[str, Any]]:
+                    log: Callable[[str], None] | None = None,
+                    scheduler: Any = None) -> Iterator[dict[str, Any]]:
     """Estimate every image; yields the records in the order of ``images``.
 
     Parameters
@@ -160,16 +162,16 @@ def estimate_images(model: str | Path, images: Sequence[Path], *,
         Called as ``progress(done, total)``.
     log : callable, optional
         Receives one-line messages.
+    scheduler : distributed.Client or str, optional
+        Estimate on this Dask cluster instead of ``jobs`` local processes.
     """
-    from posevote.evaluation.runner import folder_lock, read_records, repair_records
-
     log = log if log is not None else (lambda message: None)
     settings = dict(settings or {})
     model = Path(model)
     names = [str(p) for p in images]
     if out is None:
         yield from _run(str(model), settings, camera, max_objects, names, jobs, {}, None,
-                        progress)
+                        progress, scheduler)
         return
     folder = Path(out)
     with folder_lock(folder):
@@ -189,7 +191,7 @@ def estimate_images(model: str | Path, images: Sequence[Path], *,
             log(f"resuming: {sum(n in done for n in names)} of {len(names)} images already done")
         with records_path.open("a", encoding="utf-8") as fh:
             yield from _run(str(model), settings, camera, max_objects, names, jobs, done, fh,
-                            progress)
+                            progress, scheduler)
         text = io.StringIO()
         writer = csv.writer(text, lineterminator="\n")
         writer.writerow(CSV_FIELDS)
@@ -200,43 +202,27 @@ def estimate_images(model: str | Path, images: Sequence[Path], *,
 
 def _run(model: str, settings: dict[str, Any], camera: dict[str, float] | None,
          max_objects: int, names: list[str], jobs: int, done: dict[str, dict[str, Any]], fh: Any,
-         progress: Callable[[int, int], None] | None) -> Iterator[dict[str, Any]]:
+         progress: Callable[[int, int], None] | None, scheduler: Any) -> Iterator[dict[str, Any]]:
     """The records of ``names`` in order: finished ones from ``done``, the others estimated."""
-    from posevote.evaluation.runner import worker_pool
-
     todo = [n for n in names if n not in done]
     count = len(names) - len(todo)
     if progress is not None:
         progress(count, len(names))
-    import cv2
-
-    pool = worker_pool(jobs) if jobs > 1 and len(todo) > 1 else None
-    cv_threads = cv2.getNumThreads()
-    if pool is not None:
-        cv2.setNumThreads(1)   # before the workers fork: set in a forked child it hangs
-    try:
-        fresh = (pool.map(estimate_record, [model] * len(todo), [settings] * len(todo),
-                          [camera] * len(todo), todo, [max_objects] * len(todo))
-                 if pool is not None
-                 else (estimate_record(model, settings, camera, n, max_objects) for n in todo))
-        new = iter(fresh)
-        for name in names:
-            if name in done:
-                yield done[name]
-                continue
-            rec = next(new)
-            if fh is not None:
-                fh.write(json.dumps(rec) + "\n")
-                fh.flush()
-                os.fsync(fh.fileno())
-            count += 1
-            if progress is not None:
-                progress(count, len(names))
-            yield rec
-    finally:
-        if pool is not None:
-            pool.shutdown(wait=True, cancel_futures=True)
-        cv2.setNumThreads(cv_threads)
+    new = ordered_map(estimate_record, [(model, settings, camera, n, max_objects) for n in todo],
+                      jobs=jobs, scheduler=scheduler)
+    for name in names:
+        if name in done:
+            yield done[name]
+            continue
+        rec = next(new)
+        if fh is not None:
+            fh.write(json.dumps(rec) + "\n")
+            fh.flush()
+            os.fsync(fh.fileno())
+        count += 1
+        if progress is not None:
+            progress(count, len(names))
+        yield rec
 
 
 def estimate_bop_scene(estimator: Any, scene: str | Path, *, obj_id: int, max_objects: int = 1,

@@ -68,7 +68,7 @@ def _input_error(exc: BaseException) -> InputError:
 
 
 #: What the commands turn into ``Error:`` messages (exit 1) rather than tracebacks.
-BAD_INPUT = (OSError, ValueError, TypeError, MemoryError)
+BAD_INPUT = (OSError, ValueError, TypeError, MemoryError, ImportError)
 
 
 def _bop_training(source: Path, objects: str | None, height: float | None) -> tuple[Any, float]:
@@ -281,6 +281,8 @@ def train(source: Path, output: Path, layout: str, objects: str | None, cars: st
               help="Worker processes for the images.")
 @click.option("--max-objects", type=click.IntRange(1, 100), default=1, show_default=True,
               help="Objects to find per image (one line each).")
+@click.option("--scheduler", default=None, metavar="tcp://HOST:PORT",
+              help="Estimate the images on this Dask cluster instead of --jobs.")
 @click.option("--overlay", type=click.Path(path_type=Path),
               help="Write the image with the box and an orientation rose (one image only).")
 @click.option("--inplane-range-deg", nargs=2, type=float, default=None,
@@ -294,7 +296,8 @@ def train(source: Path, output: Path, layout: str, objects: str | None, cars: st
 @click.option("--camera", "camera_file", type=click.Path(path_type=Path), default=None,
               help="Test camera (JSON: fx, fy, cx, cy or K): adds R_cam_obj and t_cam_obj.")
 def estimate(model: Path, images: tuple[Path, ...], as_json: bool, as_csv: bool,
-             out: Path | None, jobs: int, max_objects: int, overlay: Path | None,
+             out: Path | None, jobs: int, max_objects: int, scheduler: str | None,
+             overlay: Path | None,
              inplane_range_deg: tuple[float, float] | None, scale_range: tuple[float, float] | None,
              no_fitting: bool, min_score: float | None, threads: int,
              camera_file: Path | None) -> None:
@@ -331,13 +334,14 @@ def estimate(model: Path, images: tuple[Path, ...], as_json: bool, as_csv: bool,
         if overlay is not None and len(paths) != 1:
             raise click.BadParameter(f"applies to one image; {len(paths)} given",
                                      param_hint="--overlay")
-        if len(paths) == 1 and out is None and not as_csv and max_objects == 1:
+        if len(paths) == 1 and out is None and not as_csv and max_objects == 1 \
+                and scheduler is None:
             _estimate_one(est, paths[0], as_json=as_json, overlay=overlay, camera=camera)
             return
         changes.pop("n_jobs")
         found, failed = _estimate_many(model, paths, changes, camera, jobs=jobs, out=out,
                                        as_json=as_json, as_csv=as_csv, threads=threads,
-                                       max_objects=max_objects)
+                                       max_objects=max_objects, scheduler=scheduler)
     except BAD_INPUT as exc:
         raise _input_error(exc) from None
     if failed:
@@ -390,7 +394,7 @@ def _estimate_one(est: Any, image: Path, *, as_json: bool, overlay: Path | None,
 
 def _estimate_many(model: Path, paths: list[Path], changes: dict[str, Any], camera: Any, *,
                    jobs: int, out: Path | None, as_json: bool, as_csv: bool,
-                   threads: int, max_objects: int) -> tuple[int, int]:
+                   threads: int, max_objects: int, scheduler: str | None) -> tuple[int, int]:
     """Several images: one line per image and object, in order; returns (found, failed)."""
     import csv
     import io
@@ -403,7 +407,7 @@ def _estimate_many(model: Path, paths: list[Path], changes: dict[str, Any], came
     with _progress(len(paths), "images") as bar:
         records = estimate_images(model, paths, settings={**changes, "n_jobs": threads},
                                   camera=None if camera is None else camera.to_dict(),
-                                  jobs=jobs, max_objects=max_objects, out=out,
+                                  jobs=jobs, max_objects=max_objects, out=out, scheduler=scheduler,
                                   progress=lambda d, t: bar.update(d - bar.n),
                                   log=lambda m: click.echo(m, err=True))
         for image_record in records:
@@ -511,8 +515,11 @@ def weights(model: Path, output: Path, views: int) -> None:
 @click.option("--rows", default=None,
               help="Comma-separated row names to run, or 'all' (default: all rows, except "
                    "for epfl-10-10: its main row, to keep within 15 minutes with --jobs 2).")
+@click.option("--scheduler", default=None, metavar="tcp://HOST:PORT",
+              help="Estimate the test images on this Dask cluster instead of --jobs "
+                   "(pip install 'posevote[dask]').")
 def evaluate(protocol: str, data: Path, out: Path | None, jobs: int, every: int,
-             rows: str | None) -> None:
+             rows: str | None, scheduler: str | None) -> None:
     """Run an evaluation PROTOCOL of the paper on real data and write its report."""
     from posevote.evaluation.protocols import load_protocol
     from posevote.evaluation.report import markdown_table
@@ -534,7 +541,8 @@ def evaluate(protocol: str, data: Path, out: Path | None, jobs: int, every: int,
 
         try:
             summary = run_protocol(proto, out, jobs=jobs, every=every, rows=row_list,
-                                   progress=progress, log=lambda m: click.echo(m, err=True))
+                                   progress=progress, log=lambda m: click.echo(m, err=True),
+                                   scheduler=scheduler)
         finally:
             if bar is not None:
                 bar.close()

@@ -4,8 +4,9 @@ import cv2
 import numpy as np
 import pytest
 
+from posevote._io import read_records
 from posevote.evaluation.protocols import Row
-from posevote.evaluation.runner import pose_error_deg, read_records, run_protocol, slug
+from posevote.evaluation.runner import pose_error_deg, run_protocol, slug
 
 
 def test_run_resume_and_report(tiny_protocol, tmp_path):

@@ -28,25 +28,21 @@ their estimators reject nothing (``min_score=0``, whatever the preset says).
 
 from __future__ import annotations
 
-import contextlib
 import hashlib
 import json
 import math
 import os
 import re
 import shutil
-import sys
 import time
-from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures import ProcessPoolExecutor
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
-from threadpoolctl import threadpool_limits
 
-from posevote._io import atomic_write_text
+from posevote._io import atomic_write_text, folder_lock, read_records, repair_records
+from posevote._parallel import ordered_map
 from posevote.estimator import PoseEstimator
 from posevote.evaluation.metrics import box_iou, summarize_errors
 from posevote.evaluation.protocols import Protocol, Row, Split
@@ -66,96 +62,9 @@ def pose_error_deg(estimate: float, truth: float, *, half_turn: bool) -> float:
     return min(err, 180.0 - err) if half_turn else err
 
 
-def read_records(path: Path) -> list[dict[str, Any]]:
-    """The complete records of a JSON-lines file, one an image (a cut-short last line is dropped)."""
-    if not path.is_file():
-        return []
-    out = []
-    seen: set[str] = set()
-    with path.open("r", encoding="utf-8") as fh:
-        for line in fh:
-            try:
-                rec = json.loads(line)
-            except json.JSONDecodeError:
-                continue
-            # One record an image: a second (from a run that overlapped) is ignored.
-            if isinstance(rec, dict) and "image" in rec and rec["image"] not in seen:
-                seen.add(rec["image"])
-                out.append(rec)
-    return out
-
-
-def repair_records(path: Path) -> None:
-    """Cut a records file back to its last complete line (after an interruption)."""
-    if not path.is_file():
-        return
-    data = path.read_bytes()
-    if data and not data.endswith(b"\n"):
-        os.truncate(path, data.rfind(b"\n") + 1)
-
-
 # --- the worker side ------------------------------------------------------------------
 
 _ESTIMATORS: dict[str, PoseEstimator] = {}
-
-
-def _init_worker(parent: int) -> None:
-    """One thread per worker process for numba and BLAS: the processes fill the cores.
-
-    OpenCV's thread count is set to one in the parent before the workers
-    are forked (:func:`run_protocol`): setting it in a forked child whose
-    parent had used OpenCV's threads hangs. On Linux the kernel kills the
-    worker when its parent dies, however it dies (SIGTERM, SIGKILL).
-    """
-    if sys.platform.startswith("linux"):
-        import ctypes
-        import signal
-
-        pr_set_pdeathsig = 1
-        ctypes.CDLL(None, use_errno=True).prctl(pr_set_pdeathsig, int(signal.SIGKILL))
-    if os.getppid() != parent:   # the parent died before the line above
-        os._exit(1)
-    os.environ["NUMBA_NUM_THREADS"] = "1"
-    threadpool_limits(1)
-
-
-def worker_pool(jobs: int) -> ProcessPoolExecutor:
-    """Worker processes for the test images, each ending with its parent (:func:`_init_worker`)."""
-    return ProcessPoolExecutor(max_workers=jobs, initializer=_init_worker,
-                               initargs=(os.getpid(),))
-
-
-@contextlib.contextmanager
-def folder_lock(out: Path) -> Iterator[None]:
-    """Hold the results folder for this run: a second run on it at once is refused.
-
-    The lock is the kernel's (``flock`` on ``out/.lock``): it is released
-    when the process ends, however it ends, so a killed run leaves none.
-    """
-    out.mkdir(parents=True, exist_ok=True)
-    path = out / ".lock"
-    fh = path.open("a+")
-    try:
-        try:
-            import fcntl
-        except ImportError:   # not POSIX: no lock
-            yield
-            return
-        try:
-            fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            fh.seek(0)
-            holder = fh.read().strip() or "?"
-            raise ValueError(f"{out}: another posevote evaluate (pid {holder}) is writing to "
-                             "this results folder; wait for it to finish or use another --out"
-                             ) from None
-        fh.seek(0)
-        fh.truncate()
-        fh.write(f"{os.getpid()}\n")
-        fh.flush()
-        yield
-    finally:
-        fh.close()
 
 
 def estimate_record(model_path: str, task: dict[str, Any]) -> dict[str, Any]:
@@ -283,7 +192,8 @@ def _model_facts(est: PoseEstimator, seconds: float) -> dict[str, Any]:
 def run_protocol(protocol: Protocol, out_dir: str | Path, *, jobs: int = 1, every: int = 1,
                  rows: Sequence[str] | None = None,
                  progress: Callable[[int, int], Any] | None = None,
-                 log: Callable[[str], None] | None = None) -> dict[str, Any]:
+                 log: Callable[[str], None] | None = None, scheduler: Any = None
+                 ) -> dict[str, Any]:
     """Run (or resume) a protocol and write its results folder.
 
     Parameters
@@ -304,6 +214,9 @@ def run_protocol(protocol: Protocol, out_dir: str | Path, *, jobs: int = 1, ever
         Called as ``progress(done, total)`` after each test image.
     log : callable, optional
         Receives one-line messages (the library prints nothing itself).
+    scheduler : distributed.Client or str, optional
+        Estimate the test images on this Dask cluster instead of ``jobs``
+        local processes (:mod:`posevote._parallel`); the same records.
 
     Returns
     -------
@@ -330,7 +243,7 @@ def run_protocol(protocol: Protocol, out_dir: str | Path, *, jobs: int = 1, ever
         chosen = [r for r in protocol.rows if r.name in rows]
     with folder_lock(out):
         return _run_locked(protocol, out, chosen, jobs=jobs, every=every, progress=progress,
-                           log=log, run_start=run_start)
+                           log=log, run_start=run_start, scheduler=scheduler)
 
 
 def _previous_wall(out: Path) -> float:
@@ -347,7 +260,7 @@ def _previous_wall(out: Path) -> float:
 
 def _run_locked(protocol: Protocol, out: Path, chosen: list[Row], *, jobs: int, every: int,
                 progress: Callable[[int, int], Any] | None, log: Callable[[str], None],
-                run_start: float) -> dict[str, Any]:
+                run_start: float, scheduler: Any) -> dict[str, Any]:
     """:func:`run_protocol` once the folder is held."""
     previous = _previous_wall(out)
     _check_code(out, log)
@@ -395,30 +308,20 @@ def _run_locked(protocol: Protocol, out: Path, chosen: list[Row], *, jobs: int, 
         log(f"resuming: {done} of {total} test images already done")
     if progress is not None:
         progress(done, total)
-    executor = worker_pool(jobs) if jobs > 1 else None
-    cv_threads = cv2.getNumThreads()
-    if executor is not None:
-        cv2.setNumThreads(1)   # inherited by the workers, forked at the first task
-    try:
-        for model_file, record_path, tasks in plan:
-            if not tasks:
-                continue
-            results = (executor.map(estimate_record, [model_file] * len(tasks), tasks,
-                                    chunksize=1) if executor is not None
-                       else (estimate_record(model_file, t) for t in tasks))
-            with record_path.open("a", encoding="utf-8") as fh:
-                for rec in results:
-                    fh.write(json.dumps(rec) + "\n")
-                    fh.flush()
-                    os.fsync(fh.fileno())
-                    done += 1
-                    keep_time()
-                    if progress is not None:
-                        progress(done, total)
-    finally:
-        if executor is not None:
-            executor.shutdown(wait=True, cancel_futures=True)
-        cv2.setNumThreads(cv_threads)
+    for model_file, record_path, tasks in plan:
+        if not tasks:
+            continue
+        results = ordered_map(estimate_record, [(model_file, t) for t in tasks], jobs=jobs,
+                              scheduler=scheduler)
+        with record_path.open("a", encoding="utf-8") as fh:
+            for rec in results:
+                fh.write(json.dumps(rec) + "\n")
+                fh.flush()
+                os.fsync(fh.fileno())
+                done += 1
+                keep_time()
+                if progress is not None:
+                    progress(done, total)
     records = []
     for key, images in planned.items():
         # Only this run's selection (--every): a folder may hold more from earlier runs.

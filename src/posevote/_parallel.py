@@ -1,0 +1,96 @@
+"""Worker processes for many images: a local pool, or a Dask cluster through joblib.
+
+:func:`ordered_map` runs a function over argument tuples and yields the
+results in order: in this process (one job), in a pool of worker processes
+that end with their parent (:func:`worker_pool`), or on a Dask cluster
+(``scheduler``: a ``distributed.Client`` or a scheduler address such as
+``tcp://host:8786``) through joblib's ``dask`` backend. The workers of a
+cluster need posevote installed and the files the tasks name; the results
+are those of the local pool, whatever runs them.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import ProcessPoolExecutor
+from typing import Any
+
+from threadpoolctl import threadpool_limits
+
+
+def _init_worker(parent: int) -> None:
+    """One thread per worker process for numba and BLAS: the processes fill the cores.
+
+    OpenCV's thread count is set to one in the parent before the workers
+    are forked (:func:`ordered_map`): setting it in a forked child whose
+    parent had used OpenCV's threads hangs. On Linux the kernel kills the
+    worker when its parent dies, however it dies (SIGTERM, SIGKILL).
+    """
+    if sys.platform.startswith("linux"):
+        import ctypes
+        import signal
+
+        pr_set_pdeathsig = 1
+        ctypes.CDLL(None, use_errno=True).prctl(pr_set_pdeathsig, int(signal.SIGKILL))
+    if os.getppid() != parent:   # the parent died before the line above
+        os._exit(1)
+    os.environ["NUMBA_NUM_THREADS"] = "1"
+    threadpool_limits(1)
+
+
+def worker_pool(jobs: int) -> ProcessPoolExecutor:
+    """Worker processes for the test images, each ending with its parent (:func:`_init_worker`)."""
+    return ProcessPoolExecutor(max_workers=jobs, initializer=_init_worker,
+                               initargs=(os.getpid(),))
+
+
+def ordered_map(fn: Callable[..., Any], tasks: Iterable[tuple[Any, ...]], *, jobs: int = 1,
+                scheduler: Any = None) -> Iterator[Any]:
+    """``fn(*task)`` for every task, in order (see the module docstring).
+
+    Raises
+    ------
+    ImportError
+        If a scheduler is given and ``distributed`` is not installed
+        (``pip install 'posevote[dask]'``).
+    """
+    tasks = list(tasks)
+    if scheduler is not None:
+        yield from _on_dask(fn, tasks, scheduler)
+        return
+    if jobs <= 1 or len(tasks) < 2:
+        for task in tasks:
+            yield fn(*task)
+        return
+    import cv2
+
+    threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)   # before the workers fork: set in a forked child it hangs
+    pool = worker_pool(jobs)
+    try:
+        yield from pool.map(fn, *zip(*tasks, strict=True), chunksize=1)
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
+        cv2.setNumThreads(threads)
+
+
+def _on_dask(fn: Callable[..., Any], tasks: list[tuple[Any, ...]], scheduler: Any
+             ) -> Iterator[Any]:
+    try:
+        from distributed import Client
+    except ImportError as exc:
+        raise ImportError("a Dask scheduler needs distributed: pip install 'posevote[dask]'"
+                          ) from exc
+    from joblib import Parallel, delayed, parallel_config
+
+    own = not isinstance(scheduler, Client)
+    client = Client(scheduler, set_as_default=False) if own else scheduler
+    try:
+        with parallel_config(backend="dask", client=client):
+            yield from Parallel(n_jobs=-1, return_as="generator")(
+                delayed(fn)(*task) for task in tasks)
+    finally:
+        if own:
+            client.close()

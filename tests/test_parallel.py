@@ -1,0 +1,65 @@
+"""Worker processes and the Dask cluster: the same results, in order, as one process."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from posevote._parallel import ordered_map
+
+
+def _square(x: int, offset: int) -> int:
+    return x * x + offset
+
+
+def test_local_pool_keeps_the_order():
+    tasks = [(i, 1) for i in range(7)]
+    assert list(ordered_map(_square, tasks)) == list(ordered_map(_square, tasks, jobs=2)) == [
+        i * i + 1 for i in range(7)]
+    assert list(ordered_map(_square, [], jobs=2)) == []
+
+
+@pytest.fixture(scope="module")
+def client():
+    distributed = pytest.importorskip("distributed")
+    cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                       dashboard_address=None, host="127.0.0.1")
+    with distributed.Client(cluster) as c:
+        yield c
+    cluster.close()
+
+
+@pytest.mark.filterwarnings("ignore")
+def test_a_dask_cluster_gives_the_local_results(client, fitted_estimator, draw, tmp_path):
+    import cv2
+
+    from posevote.batch import estimate_images
+
+    model = tmp_path / "m.npz"
+    fitted_estimator.save(model)
+    paths = []
+    for i, az in enumerate((30, 140, 260)):
+        paths.append(tmp_path / f"t{i}.png")
+        cv2.imwrite(str(paths[-1]), (draw(np.radians(az)) * 255).astype(np.uint8))
+    assert list(ordered_map(_square, [(i, 0) for i in range(5)], scheduler=client)) == [
+        0, 1, 4, 9, 16]
+    local = list(estimate_images(model, paths))
+    remote = list(estimate_images(model, paths, scheduler=client))
+    assert [r["best"] for r in remote] == [r["best"] for r in local]
+    # The address form: a client of its own, closed afterwards.
+    by_address = list(ordered_map(_square, [(3, 0)], scheduler=client.scheduler.address))
+    assert by_address == [9]
+
+
+@pytest.mark.filterwarnings("ignore")
+def test_an_evaluation_on_dask_equals_the_local_one(client, tiny_protocol, tmp_path):
+    from posevote._io import read_records
+    from posevote.evaluation.runner import run_protocol, slug
+
+    quiet = {"log": lambda m: None, "rows": ["weights + fitting"]}
+    run_protocol(tiny_protocol, tmp_path / "local", **quiet)
+    run_protocol(tiny_protocol, tmp_path / "dask", scheduler=client, **quiet)
+    key = f"{slug('weights + fitting')}__only.jsonl"
+    a, b = (sorted(read_records(tmp_path / d / "records" / key), key=lambda r: r["image"])
+            for d in ("local", "dask"))
+    assert [r["estimate_deg"] for r in a] == [r["estimate_deg"] for r in b]
