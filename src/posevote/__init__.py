@@ -13,7 +13,7 @@ __all__ = ["Camera", "Hypothesis", "NotFittedError", "PoseEstimate", "PoseEstima
            "__version__"]
 __version__ = "0.1.0"
 
-_EXPORTS = {"PoseEstimator": "posevote.estimator", "NotFittedError": "posevote.estimator",
+_EXPORTS = {"PoseEstimator": "posevote.estimator", "NotFittedError": "posevote._errors",
             "Hypothesis": "posevote.results", "PoseEstimate": "posevote.results",
             "Camera": "posevote.camera"}
 

@@ -8,7 +8,6 @@ Named, tuned configurations are :mod:`posevote.presets`.
 
 from __future__ import annotations
 
-import functools
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -17,6 +16,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from posevote._errors import not_fitted_error
 from posevote._options import GroupedParams, Options, params_from_json, params_to_json
 from posevote.camera import Camera, place_all
 from posevote.data.images import load_image
@@ -36,7 +36,7 @@ from posevote.model.appearance import AppearanceModel, AppearanceOptions
 from posevote.model.density import PoseModel
 from posevote.model.kernels import KernelOptions
 from posevote.model.pruning import PruningPreset, resolve_preset
-from posevote.model.training import TrainedModel, train_model
+from posevote.model.training import TrainedModel, extend_model, train_model
 from posevote.presets import get_preset, nearest_preset
 from posevote.refinement.appearance import appearance_refine
 from posevote.refinement.fitting import FIT_RADIUS_STEPS, find_modes, refine_mode
@@ -50,23 +50,6 @@ ImageLike = str | Path | NDArray
 OPTION_GROUPS: dict[str, type[Options]] = {
     "edges": EdgeOptions, "kernel": KernelOptions, "search": SearchOptions,
     "recognition": RecognitionOptions, "appearance": AppearanceOptions}
-
-
-@functools.cache
-def _not_fitted_error() -> type[Exception]:
-    # A subclass of scikit-learn's NotFittedError, whose import takes most of a
-    # second: built on first use, so that a plain estimate never pays for it.
-    from sklearn.exceptions import NotFittedError as Base
-
-    return type("NotFittedError", (Base,), {
-        "__doc__": "Raised when an estimator is used before fit() or load().",
-        "__module__": __name__})
-
-
-def __getattr__(name: str) -> Any:
-    if name == "NotFittedError":
-        return _not_fitted_error()
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 class PoseEstimator(GroupedParams):
@@ -219,6 +202,33 @@ class PoseEstimator(GroupedParams):
         self._set_trained(trained)
         return self
 
+    def partial_fit(self, images: Sequence[ImageLike], poses: ArrayLike, *,
+                    boxes: ArrayLike | None = None,
+                    masks: Sequence[ImageLike | None] | None = None,
+                    instances: Sequence[str] | None = None,
+                    progress: Callable[[int], None] | None = None,
+                    channels: str = "rgb") -> PoseEstimator:
+        """Add views or instances to the fitted model: the model a fit on all the data gives.
+
+        Arguments as :meth:`fit`. Only the new images are read;
+        :func:`posevote.model.training.extend_model` says what is computed
+        again, and why a model with the appearance stages or morphing needs
+        a new fit instead.
+        """
+        self._check_fitted()
+        self._validate_params()
+        self._set_trained(extend_model(self._trained(), images, poses, boxes=boxes, masks=masks,
+                                       instances=instances, edges=self.edges, kernel=self.kernel,
+                                       prune=resolve_preset(self.prune), progress=progress,
+                                       channels=channels))
+        return self
+
+    def _trained(self) -> TrainedModel:
+        return TrainedModel(model=self._check_fitted(), full_model=self.full_model_,
+                            viewpoint_kappa=self.viewpoint_kappa_,
+                            appearance=getattr(self, "appearance_model_", None),
+                            pruning=self.pruning_, object_height_m=self.object_height_m_)
+
     def _set_trained(self, trained: TrainedModel) -> None:
         self.model_ = trained.model
         self.full_model_ = trained.full_model
@@ -230,7 +240,7 @@ class PoseEstimator(GroupedParams):
     def _check_fitted(self) -> PoseModel:
         model = getattr(self, "model_", None)
         if model is None:
-            raise _not_fitted_error()("this PoseEstimator is not fitted yet; call fit() or "
+            raise not_fitted_error()("this PoseEstimator is not fitted yet; call fit() or "
                                       "load() first")
         return model
 
@@ -363,13 +373,7 @@ class PoseEstimator(GroupedParams):
         """Write the fitted model to a file (atomically); see :mod:`posevote.model.modelfile`."""
         from posevote.model.modelfile import save_model
 
-        model = self._check_fitted()
-        save_model(path, TrainedModel(model=model, full_model=self.full_model_,
-                                      viewpoint_kappa=self.viewpoint_kappa_,
-                                      appearance=getattr(self, "appearance_model_", None),
-                                      pruning=self.pruning_,
-                                      object_height_m=self.object_height_m_),
-                   params_to_json(self.get_params(deep=False)),
+        save_model(path, self._trained(), params_to_json(self.get_params(deep=False)),
                    preset=nearest_preset(self.get_params(deep=False),
                                          type(self)().get_params(deep=False)))
 

@@ -63,3 +63,44 @@ def test_appearance_descriptors_from_boxes_or_masks_agree(synthetic_training):
     if a.objectness is not None:
         np.testing.assert_allclose(a.objectness, b.objectness)
     np.testing.assert_allclose(a.regressor, b.regressor)
+
+
+def test_extending_a_model_equals_training_on_everything(synthetic_training, draw, tmp_path):
+    from posevote import PoseEstimator
+
+    images, az, boxes = synthetic_training
+    names = ["a"] * 9 + ["b"] * 9
+    scaled = [img if i < 9 else draw(az[i], scale=0.8) for i, img in enumerate(images)]
+    from posevote.data import object_box
+
+    boxes = np.array([object_box(img) for img in scaled])
+    whole = PoseEstimator(prune="moderate").fit(scaled, az, boxes=boxes, instances=names)
+    first = PoseEstimator(prune="moderate").fit(scaled[:9], az[:9], boxes=boxes[:9],
+                                                instances=names[:9])
+    first.save(tmp_path / "a.npz")
+    grown = PoseEstimator.load(tmp_path / "a.npz").partial_fit(
+        scaled[9:], az[9:], boxes=boxes[9:], instances=names[9:])
+    for name in ("xy", "theta", "view", "weight", "view_azimuth", "view_box", "view_instance"):
+        np.testing.assert_allclose(getattr(grown.full_model_, name),
+                                   getattr(whole.full_model_, name), atol=1e-9, err_msg=name)
+    assert grown.full_model_.instance_names == whole.full_model_.instance_names == ("a", "b")
+    assert grown.model_.n_features == whole.model_.n_features      # pruned again
+    assert grown.viewpoint_kappa_ == pytest.approx(whole.viewpoint_kappa_)
+    test = draw(np.radians(130))
+    a, b = grown.estimate(test), whole.estimate(test)
+    assert a.best.azimuth == pytest.approx(b.best.azimuth, abs=1e-9)
+    assert a.best.score == pytest.approx(b.best.score, abs=1e-9)
+
+
+def test_extending_needs_what_can_be_redone(synthetic_training):
+    from posevote import NotFittedError, PoseEstimator
+    from posevote.model.appearance import AppearanceOptions
+
+    images, az, boxes = synthetic_training
+    with pytest.raises(NotFittedError):
+        PoseEstimator().partial_fit(images[:1], az[:1])
+    looked = PoseEstimator(appearance=AppearanceOptions()).fit(images, az, boxes=boxes)
+    with pytest.raises(ValueError, match="fit it again on all the images"):
+        looked.partial_fit(images[:1], az[:1])
+    with pytest.raises(TypeError, match="single"):
+        PoseEstimator().fit(images, az).partial_fit("folder", az[:1])

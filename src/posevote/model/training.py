@@ -20,7 +20,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from posevote.camera import check_object_height
 from posevote.data.images import load_image, read_mask
-from posevote.features.edges import EdgeOptions, box_mask, extract_edges
+from posevote.features.edges import EdgeFeatures, EdgeOptions, box_mask, extract_edges
 from posevote.geometry import box_centre
 from posevote.model.appearance import AppearanceCollector, AppearanceModel
 from posevote.model.density import PoseModel, build_model, viewpoint_kappa
@@ -176,6 +176,29 @@ def train_model(images: Sequence[str | Path | NDArray], poses: ArrayLike, *,
         raise TypeError(f"images must be a sequence of image paths or arrays, got the single "
                         f"path {str(images)!r} (read a training folder with read_poses_csv)")
     images = list(images)
+    views = _extract(images, poses, boxes, masks, instances, edges=edges, morph=morph,
+                     appearance=appearance, progress=progress, channels=channels)
+    return _pool(views, category=category, kernel=kernel, prune=prune, height=height)
+
+
+@dataclass(kw_only=True, eq=False)
+class _Views:
+    """What training reads from each image, before the views are pooled."""
+
+    feats: list[EdgeFeatures]
+    centres: NDArray[np.float64]
+    sizes: NDArray[np.float64]
+    poses: NDArray[np.float64]
+    names: list[str]
+    collector: AppearanceCollector | None = None
+    crops: ViewCrops | None = None
+
+
+def _extract(images: list[Any], poses: ArrayLike, boxes: ArrayLike | None,
+             masks: Sequence[Any] | None, instances: Sequence[str] | None, *,
+             edges: EdgeOptions, morph: bool, appearance: bool,
+             progress: Callable[[int], None] | None, channels: str) -> _Views:
+    """Each image's edges inside its box (and mask), box and pose (one image at a time)."""
     pose_arr, box_arr, mask_list, names = _check_inputs(images, poses, boxes, masks, instances)
     k = len(images)
     feats, centres, sizes = [], np.zeros((k, 2)), np.zeros((k, 2))
@@ -205,7 +228,16 @@ def train_model(images: Sequence[str | Path | NDArray], poses: ArrayLike, *,
         sizes[i] = box[2:]
         if progress is not None:
             progress(1)
+    return _Views(feats=feats, centres=centres, sizes=sizes, poses=pose_arr, names=names,
+                  collector=collector, crops=crops)
 
+
+def _pool(views: _Views, *, category: str, kernel: KernelOptions, prune: PruningPreset | None,
+          height: float | None) -> TrainedModel:
+    """psi from the views (Sec. II-A), the weights (Eq. 4) and the pruning (Sec. III-A)."""
+    feats, centres, sizes, pose_arr, names = (views.feats, views.centres, views.sizes,
+                                              views.poses, views.names)
+    collector, crops = views.collector, views.crops
     instance_names = sorted(set(names))
     inst_index = np.array([instance_names.index(n) for n in names])
     # Each instance keeps its own typical size; instances are brought to the
@@ -233,3 +265,54 @@ def train_model(images: Sequence[str | Path | NDArray], poses: ArrayLike, *,
     return TrainedModel(model=searched, full_model=full, viewpoint_kappa=kappa,
                         appearance=None if collector is None else collector.finish(sizes),
                         pruning=None if prune is None else asdict(prune), object_height_m=height)
+
+
+def extend_model(trained: TrainedModel, images: Sequence[str | Path | NDArray], poses: ArrayLike,
+                 *, boxes: ArrayLike | None = None, masks: Sequence[Any] | None = None,
+                 instances: Sequence[str] | None = None, edges: EdgeOptions = EdgeOptions(),
+                 kernel: KernelOptions = KernelOptions(), prune: PruningPreset | None = None,
+                 progress: Callable[[int], None] | None = None,
+                 channels: str = "rgb") -> TrainedModel:
+    """The model of ``trained``'s views and the new ones: what a training on all of them gives.
+
+    Only the new images are read. The views already learnt are taken back
+    from the full model (each feature at its view's training size, upright),
+    and everything that depends on all the views is computed again: the
+    instances' sizes and the reference size, the pose kernel's
+    concentration, the weights of Eq. 4 (a view's weight depends on every
+    other view) and the pruning. The appearance model (its classifier and box
+    regressions are trained on crops of every image) and the morphing (its
+    flow between neighbouring views) need the old images, so such a model
+    must be trained again on all of them.
+
+    Raises
+    ------
+    ValueError
+        On a model with the appearance stages or morphing, or bad new input
+        (as :func:`train_model`).
+    """
+    full = trained.full_model
+    if trained.appearance is not None or full.shift is not None:
+        raise ValueError("this model has the appearance stages or morphing, which are learnt "
+                         "from every training image: fit it again on all the images")
+    if isinstance(images, (str, Path)):
+        raise TypeError(f"images must be a sequence of image paths or arrays, got the single "
+                        f"path {str(images)!r}")
+    new = _extract(list(images), poses, boxes, masks, instances, edges=edges, morph=False,
+                   appearance=False, progress=progress, channels=channels)
+    size = np.asarray(full.instance_size or [1.0] * len(full.instance_names), dtype=np.float64)
+    old_feats = []
+    for k in range(full.n_views):
+        s = size[full.view_instance[k]]
+        sel = full.view == k
+        old_feats.append(EdgeFeatures(xy=full.xy[sel] * s, theta=full.theta[sel].copy()))
+    old_sizes = full.view_box * size[full.view_instance][:, None]
+    old_poses = np.column_stack([full.view_azimuth, full.view_elevation,
+                                 np.zeros(full.n_views)])
+    views = _Views(feats=old_feats + new.feats,
+                   centres=np.vstack([np.zeros((full.n_views, 2)), new.centres]),
+                   sizes=np.vstack([old_sizes, new.sizes]),
+                   poses=np.vstack([old_poses, new.poses]),
+                   names=[full.instance_names[i] for i in full.view_instance] + new.names)
+    return _pool(views, category=full.category, kernel=kernel, prune=prune,
+                 height=trained.object_height_m)
