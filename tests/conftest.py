@@ -152,3 +152,24 @@ def tiny_protocol(tmp_path_factory, synthetic_training, draw):
     return Protocol(name="tiny", description="synthetic", splits=(split,),
                     rows=(Row(name="weights + fitting", params={}),
                           Row(name="later", params=None, note="arrives later")))
+
+
+@pytest.fixture(scope="session")
+def training_folder(tmp_path_factory, synthetic_training):
+    """A training folder (poses.csv with boxes) of the synthetic object's 18 views."""
+    images, az, boxes = synthetic_training
+    folder = tmp_path_factory.mktemp("train")
+    lines = ["image,azimuth_deg,box_x,box_y,box_w,box_h"]
+    for i, (img, a, b) in enumerate(zip(images, az, boxes, strict=True)):
+        cv2.imwrite(str(folder / f"v{i:02d}.png"), (img * 255).astype(np.uint8))
+        lines.append(f"v{i:02d}.png,{np.degrees(a):.1f},{b[0]},{b[1]},{b[2]},{b[3]}")
+    (folder / "poses.csv").write_text("\n".join(lines) + "\n")
+    return folder
+
+
+@pytest.fixture(scope="session")
+def saved_model(fitted_estimator, tmp_path_factory):
+    """The fitted estimator's model file."""
+    path = tmp_path_factory.mktemp("model") / "model.npz"
+    fitted_estimator.save(path)
+    return path

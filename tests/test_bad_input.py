@@ -30,23 +30,13 @@ from posevote.cli import cli
 
 
 @pytest.fixture(scope="module")
-def folder(tmp_path_factory, synthetic_training):
-    """A valid training folder (poses.csv with boxes) of the synthetic object."""
-    images, az, boxes = synthetic_training
-    out = tmp_path_factory.mktemp("train")
-    lines = ["image,azimuth_deg,box_x,box_y,box_w,box_h"]
-    for i, (img, a, b) in enumerate(zip(images, az, boxes, strict=True)):
-        cv2.imwrite(str(out / f"v{i:02d}.png"), (img * 255).astype(np.uint8))
-        lines.append(f"v{i:02d}.png,{np.degrees(a):.1f},{b[0]},{b[1]},{b[2]},{b[3]}")
-    (out / "poses.csv").write_text("\n".join(lines) + "\n")
-    return out
+def folder(training_folder):
+    return training_folder
 
 
 @pytest.fixture(scope="module")
-def model(fitted_estimator, tmp_path_factory):
-    path = tmp_path_factory.mktemp("model") / "model.npz"
-    fitted_estimator.save(path)
-    return path
+def model(saved_model):
+    return saved_model
 
 
 @pytest.fixture(scope="module")

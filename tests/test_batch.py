@@ -16,10 +16,8 @@ from posevote.cli import cli
 
 
 @pytest.fixture(scope="module")
-def model(fitted_estimator, tmp_path_factory):
-    path = tmp_path_factory.mktemp("model") / "model.npz"
-    fitted_estimator.save(path)
-    return path
+def model(saved_model):
+    return saved_model
 
 
 @pytest.fixture(scope="module")

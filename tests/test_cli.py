@@ -12,18 +12,6 @@ from posevote.cli import cli
 
 
 @pytest.fixture(scope="module")
-def training_folder(tmp_path_factory, synthetic_training):
-    images, az, boxes = synthetic_training
-    folder = tmp_path_factory.mktemp("train")
-    lines = ["image,azimuth_deg,box_x,box_y,box_w,box_h"]
-    for i, (img, a, b) in enumerate(zip(images, az, boxes, strict=True)):
-        cv2.imwrite(str(folder / f"v{i:02d}.png"), (img * 255).astype(np.uint8))
-        lines.append(f"v{i:02d}.png,{np.degrees(a):.1f},{b[0]},{b[1]},{b[2]},{b[3]}")
-    (folder / "poses.csv").write_text("\n".join(lines) + "\n")
-    return folder
-
-
-@pytest.fixture(scope="module")
 def model_file(training_folder, tmp_path_factory):
     out = tmp_path_factory.mktemp("model") / "model.npz"
     result = CliRunner().invoke(cli, ["train", str(training_folder), "-o", str(out)])
