@@ -52,6 +52,12 @@ objects: [`results/rejection_threshold.md`](results/rejection_threshold.md)
 [`results/rejection_threshold_clutter.md`](results/rejection_threshold_clutter.md)
 (pasted on clutter, the `cluttered` preset).
 
+The whole viewing sphere (issue 28, a first measurement): pybullet's r2d2
+rendered at elevations -30 to 60°, tested pasted on clutter, with rotation
+and translation errors in the camera frame:
+[`results/rendered_sphere.md`](results/rendered_sphere.md)
+(`python benchmarks/rendered_sphere.py --markdown docs/results/rendered_sphere.md`).
+
 One estimate with its viewpoints probed by 1 or 2 threads (`n_jobs`, the same
 estimate either way): [`results/time_threads.md`](results/time_threads.md)
 (`python benchmarks/time_threads.py --markdown docs/results/time_threads.md`).

@@ -25,15 +25,24 @@ from posevote.evaluation.plots import draw_overlay, write_png
 from posevote.evaluation.synthetic import paste_on_clutter
 from posevote.geometry import angular_error
 
+#: Vertical field of view of the renderer, degrees.
+RENDER_FOV_DEG = 40.0
+
 
 @dataclass(frozen=True, kw_only=True, eq=False)
 class RenderedView:
-    """A rendered view: grey image, object mask, object box and azimuth (radians)."""
+    """A rendered view: grey image, object mask, object box, azimuth (radians), camera distance (m)."""
 
     image: NDArray[np.float64]
     mask: NDArray[np.bool_]
     box: NDArray[np.float64]
     azimuth: float
+    distance: float = float("nan")
+
+
+def render_focal(size: int) -> float:
+    """The renderer's focal length, pixels, for a square image of ``size`` pixels."""
+    return (size / 2.0) / float(np.tan(np.radians(RENDER_FOV_DEG / 2.0)))
 
 
 def render_turntable(azimuths: NDArray[np.float64], *, size: int = 128, elevation_deg: float = 20.0,
@@ -88,9 +97,9 @@ def render_turntable(azimuths: NDArray[np.float64], *, size: int = 128, elevatio
             lo = np.min([b[0] for b in bounds], axis=0)
             hi = np.max([b[1] for b in bounds], axis=0)
             target = tuple((lo + hi) / 2.0)
-            distance = float(np.linalg.norm(hi - lo)) / 2.0 / np.sin(np.radians(20.0))
+            distance = float(np.linalg.norm(hi - lo)) / 2.0 / np.sin(np.radians(RENDER_FOV_DEG / 2))
             pivot = np.array([target[0], target[1], 0.0])
-        proj = pybullet.computeProjectionMatrixFOV(fov=40, aspect=1.0, nearVal=0.01,
+        proj = pybullet.computeProjectionMatrixFOV(fov=RENDER_FOV_DEG, aspect=1.0, nearVal=0.01,
                                                    farVal=10.0 * distance + 10.0)
         view = pybullet.computeViewMatrixFromYawPitchRoll(
             cameraTargetPosition=list(target), distance=distance, yaw=0.0,
@@ -116,7 +125,8 @@ def render_turntable(azimuths: NDArray[np.float64], *, size: int = 128, elevatio
             gray = np.where(mask, gray, 0.0)  # object on black, as COIL-100
             rows, cols = np.nonzero(mask)
             box = np.array([cols.min(), rows.min(), np.ptp(cols) + 1, np.ptp(rows) + 1], dtype=float)
-            out.append(RenderedView(image=gray, mask=mask, box=box, azimuth=float(az)))
+            out.append(RenderedView(image=gray, mask=mask, box=box, azimuth=float(az),
+                                    distance=float(distance)))
         return out
     finally:
         pybullet.disconnect(client)

@@ -23,6 +23,8 @@ from posevote.data.images import load_image
 from posevote.features.edges import EdgeFeatures, EdgeOptions, extract_edges, without_box
 from posevote.geometry import box_iou
 from posevote.inference.search import (
+    OBJECT_MARGIN,
+    OBJECT_OVERLAP,
     ProbeSet,
     SearchOptions,
     SearchSetup,
@@ -225,9 +227,8 @@ class PoseEstimator(GroupedParams):
 
     def _trained(self) -> TrainedModel:
         return TrainedModel(model=self._check_fitted(), full_model=self.full_model_,
-                            viewpoint_kappa=self.viewpoint_kappa_,
-                            appearance=getattr(self, "appearance_model_", None),
-                            pruning=self.pruning_, object_height_m=self.object_height_m_)
+                            viewpoint_kappa=self.viewpoint_kappa_, pruning=self.pruning_,
+                            appearance=self.appearance_model_, object_height_m=self.object_height_m_)
 
     def _set_trained(self, trained: TrainedModel) -> None:
         self.model_ = trained.model
@@ -306,10 +307,10 @@ class PoseEstimator(GroupedParams):
                          camera: Camera | None = None) -> list[PoseEstimate]:
         """Up to ``max_objects`` objects, best first (each as :meth:`estimate` finds one).
 
-        After each object is found, the edges in its box (grown by a tenth)
-        are taken away and the search runs again on the rest; a box that
-        overlaps one already found (IoU over 0.3) is not kept. The list is
-        empty when no object is found.
+        After each object is found, the edges in its box (grown by
+        ``OBJECT_MARGIN``) are taken away and the search runs again on the rest;
+        a box overlapping one already found (IoU over ``OBJECT_OVERLAP``) is
+        not kept. The list is empty when no object is found.
         """
         start = time.perf_counter()
         self._check_fitted()
@@ -322,9 +323,9 @@ class PoseEstimator(GroupedParams):
             result = self._estimate(feats, img, camera, start)
             if result.best is None:
                 break
-            if all(box_iou(result.best.box, f.best.box) <= 0.3 for f in found if f.best):
+            if all(box_iou(result.best.box, f.best.box) <= OBJECT_OVERLAP for f in found if f.best):
                 found.append(result)
-            feats = without_box(feats, result.best.box, grow=0.1)
+            feats = without_box(feats, result.best.box, grow=OBJECT_MARGIN)
             start = time.perf_counter()
         return found
 

@@ -42,6 +42,12 @@ VOTE_CANDIDATES = 2
 #: before anything is allocated.
 MAX_PROBES = 2_000_000
 MAX_GRID_STEPS = 400
+#: Several objects in one image: a box overlapping one already found by more
+#: than this IoU is the same object found again.
+OBJECT_OVERLAP = 0.3
+#: Several objects: the edges this far around a found box (a share of its
+#: size) go with it, so that its outline does not attract the next search.
+OBJECT_MARGIN = 0.1
 
 
 @dataclass(frozen=True, kw_only=True, repr=False)
