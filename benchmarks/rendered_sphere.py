@@ -18,9 +18,12 @@ divided by the pasted scale. Reported: the geodesic rotation error, the
 translation error as a share of the true depth, the detection rate (box
 IoU >= 0.5) and the seconds per image.
 
+``--clean`` tests the views as rendered, on black, with the ``default``
+preset: the sphere model without clutter, scale or in-plane search.
+
 Usage::
 
-    python benchmarks/rendered_sphere.py [--mesh r2d2.urdf] [--images 40] [--jobs 2]
+    python benchmarks/rendered_sphere.py [--mesh r2d2.urdf] [--images 40] [--clean] [--jobs 2]
         [--param NAME=VALUE ...] [--markdown FILE]
 """
 
@@ -45,8 +48,8 @@ from posevote import Camera, PoseEstimator  # noqa: E402
 from posevote.camera import object_height_from_distances  # noqa: E402
 from posevote.demo import render_focal, render_turntable  # noqa: E402
 from posevote.evaluation.metrics import box_iou  # noqa: E402
-from posevote.evaluation.synthetic import paste_on_clutter  # noqa: E402
-from posevote.geometry import rotation_from_pose  # noqa: E402
+from posevote.evaluation.synthetic import PastedView, paste_on_clutter  # noqa: E402
+from posevote.geometry import box_centre, rotation_from_pose  # noqa: E402
 
 ELEVATIONS_DEG = (-30, -15, 0, 15, 30, 45, 60)
 AZIMUTH_STEP_DEG = 20
@@ -70,15 +73,17 @@ def geodesic_deg(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.degrees(np.arccos(np.clip((np.trace(a @ b.T) - 1.0) / 2.0, -1.0, 1.0))))
 
 
-def run_chunk(mesh: str, params: dict, seeds: list[int]) -> list[dict]:
+def run_chunk(mesh: str, params: dict, seeds: list[int], clean: bool = False) -> list[dict]:
     views, poses = training_views(mesh)
     focal = render_focal(SIZE)
     height = object_height_from_distances([v.box[3] for v in views], [v.distance for v in views],
                                           Camera(fx=focal, fy=focal, cx=0.0, cy=0.0))
-    est = PoseEstimator.from_preset("cluttered", **{"min_score": 0.0, **params}).fit(
+    est = PoseEstimator.from_preset("default" if clean else "cluttered",
+                                    **{"min_score": 0.0, **params}).fit(
         [v.image for v in views], poses, boxes=[v.box for v in views],
         masks=[v.mask for v in views], object_height_m=height)
-    camera = Camera(fx=focal, fy=focal, cx=(CANVAS[1] - 1) / 2.0, cy=(CANVAS[0] - 1) / 2.0)
+    shape = (SIZE, SIZE) if clean else CANVAS
+    camera = Camera(fx=focal, fy=focal, cx=(shape[1] - 1) / 2.0, cy=(shape[0] - 1) / 2.0)
     out = []
     for seed in seeds:
         rng = np.random.default_rng(seed)
@@ -87,7 +92,9 @@ def run_chunk(mesh: str, params: dict, seeds: list[int]) -> list[dict]:
         view = render_turntable(np.array([az]), size=SIZE, elevation_deg=el, distance=None,
                                 mesh=mesh, base_euler=MESHES[mesh])[0]
         pasted = paste_on_clutter(view.image, view.box, rng=rng, canvas_shape=CANVAS,
-                                  scale_range=(0.8, 1.25), mask=view.mask)
+                                  scale_range=(0.8, 1.25), mask=view.mask) if not clean else \
+            PastedView(image=view.image, position=box_centre(view.box), scale=1.0, inplane=0.0,
+                       box=tuple(view.box), occluded_fraction=0.0)
         t0 = time.perf_counter()
         result = est.estimate(pasted.image, camera=camera)
         seconds = time.perf_counter() - t0
@@ -115,6 +122,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--images", type=int, default=40)
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--clean", action="store_true",
+                    help="test views as rendered, on black (the default preset): the sphere "
+                         "model without clutter")
     ap.add_argument("--param", action="append", default=[], help="NAME=VALUE estimator setting")
     ap.add_argument("--markdown", help="also write the printed report here")
     args = ap.parse_args(argv)
@@ -124,7 +134,8 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
         records = sorted((r for part in pool.map(run_chunk, [args.mesh] * len(chunks),
-                                                 [params] * len(chunks), chunks) for r in part),
+                                                 [params] * len(chunks), chunks,
+                                                 [args.clean] * len(chunks)) for r in part),
                          key=lambda r: r["seed"])
     wall = time.perf_counter() - t0
     report = io.StringIO()
@@ -133,8 +144,9 @@ def main(argv: list[str] | None = None) -> int:
         tra = np.array([r["translation_pct"] for r in records])
         print(f"rendered sphere, {args.mesh}: {len(ELEVATIONS_DEG) * 360 // AZIMUTH_STEP_DEG} "
               f"training views (azimuth every {AZIMUTH_STEP_DEG} deg, elevations "
-              f"{ELEVATIONS_DEG}), {len(records)} test images pasted on clutter; preset "
-              f"cluttered, overrides {params or 'none'}")
+              f"{ELEVATIONS_DEG}), {len(records)} test images "
+              f"{'as rendered, on black' if args.clean else 'pasted on clutter'}; preset "
+              f"{'default' if args.clean else 'cluttered'}, overrides {params or 'none'}")
         print(f"rotation error: median {np.median(rot):.2f} deg, mean {np.mean(rot):.2f} deg, "
               f"{100 * np.mean(rot < 10):.1f}% under 10 deg, {100 * np.mean(rot < 30):.1f}% under "
               f"30 deg")
