@@ -11,6 +11,7 @@ are those of the local pool, whatever runs them.
 
 from __future__ import annotations
 
+import functools
 import os
 import sys
 from collections.abc import Callable, Iterable, Iterator
@@ -85,12 +86,19 @@ def _on_dask(fn: Callable[..., Any], tasks: list[tuple[Any, ...]], scheduler: An
                           ) from exc
     from joblib import Parallel, delayed, parallel_config
 
+    task_fn = functools.partial(_one_thread, fn)
     own = not isinstance(scheduler, Client)
     client = Client(scheduler, set_as_default=False) if own else scheduler
     try:
         with parallel_config(backend="dask", client=client):
             yield from Parallel(n_jobs=-1, return_as="generator")(
-                delayed(fn)(*task) for task in tasks)
+                delayed(task_fn)(*task) for task in tasks)
     finally:
         if own:
             client.close()
+
+
+def _one_thread(fn: Callable[..., Any], *args: Any) -> Any:
+    """``fn(*args)`` with BLAS on one thread: a cluster's worker fills its core as a local one does."""
+    with threadpool_limits(1):
+        return fn(*args)

@@ -73,7 +73,6 @@ BAD_INPUT = (OSError, ValueError, TypeError, MemoryError, ImportError)
 
 def _bop_training(source: Path, objects: str | None, height: float | None) -> tuple[Any, float]:
     """A BOP scene's views of one object, and its height (given, or from the scene's cameras)."""
-    from posevote.camera import object_height_from_distances
     from posevote.data.bop import read_bop_scene
 
     obj = _int_list(objects, option="--objects")
@@ -81,34 +80,24 @@ def _bop_training(source: Path, objects: str | None, height: float | None) -> tu
         raise click.BadParameter("--layout bop needs one obj_id", param_hint="--objects")
     scene = read_bop_scene(source, obj_id=obj[0])
     ts = scene.training_set
-    if height is None:
-        height = object_height_from_distances(ts.boxes[:, 3], ts.distances, scene.cameras)
-    return ts, height
+    return ts, height if height is not None else ts.object_height_m(scene.cameras)
 
 
 def _object_height(ts: Any, camera_file: Path | None, height: float | None) -> float | None:
     """The object's height in metres: given, or from the training camera and distance_m."""
     import numpy as np
 
-    from posevote.camera import object_height_from_distances, read_camera
+    from posevote.camera import read_camera
 
-    given = len(ts.distances) and bool(np.isfinite(ts.distances).any())
-    if height is not None:
-        if camera_file is not None:
-            raise click.BadParameter("give --object-height-m or --camera, not both",
-                                     param_hint="--camera")
-        return height
-    if camera_file is None:
-        if given:
-            raise click.BadParameter("the distance_m column needs the training camera",
-                                     param_hint="--camera")
-        return None
-    if not given or not np.all(np.isfinite(ts.distances)):
-        raise ValueError("--camera: every row of poses.csv needs a distance_m (the training "
-                         "camera gives the object's height from the distances)")
-    if not np.all(np.isfinite(ts.boxes)):
-        raise ValueError("--camera: the object's height from distance_m needs the box columns")
-    return object_height_from_distances(ts.boxes[:, 3], ts.distances, read_camera(camera_file))
+    if height is not None and camera_file is not None:
+        raise click.BadParameter("give --object-height-m or --camera, not both",
+                                 param_hint="--camera")
+    if camera_file is not None:
+        return ts.object_height_m(read_camera(camera_file))
+    if height is None and np.isfinite(ts.distances).any():
+        raise click.BadParameter("the distance_m column needs the training camera",
+                                 param_hint="--camera")
+    return height
 
 
 def _parse_params(items: tuple[str, ...]) -> dict[str, Any]:

@@ -82,3 +82,21 @@ def test_epfl_reader(epfl_dir):
     assert np.median(steps) < 5
     with pytest.raises(ValueError, match="car 99 is not in"):
         read_epfl(epfl_dir, cars=[99])
+
+
+def test_object_height_from_the_distances(tmp_path):
+    from posevote.camera import Camera
+
+    cam = Camera(fx=500.0, fy=500.0, cx=10.0, cy=10.0)
+    header = "image,azimuth_deg,box_x,box_y,box_w,box_h,distance_m"
+    ts = read_poses_csv(make_folder(tmp_path, ["im0.png,0,0,0,10,10,2", "im1.png,20,0,0,10,20,2"],
+                                    header=header))
+    assert ts.object_height_m(cam) == pytest.approx(np.median([10 * 2 / 500, 20 * 2 / 500]))
+    partial = read_poses_csv(make_folder(tmp_path, ["im0.png,0,0,0,10,10,2", "im1.png,20,0,0,10,20,"],
+                                         header=header))
+    with pytest.raises(ValueError, match="needs a distance_m in every row"):
+        partial.object_height_m(cam)
+    no_box = read_poses_csv(make_folder(tmp_path, ["im0.png,0,1", "im1.png,20,1"],
+                                        header="image,azimuth_deg,distance_m"))
+    with pytest.raises(ValueError, match="needs the box columns"):
+        no_box.object_height_m(cam)

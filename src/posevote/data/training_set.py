@@ -50,6 +50,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from posevote.camera import Camera, object_height_from_distances
 from posevote.data.images import read_image, read_mask
 
 POSES_FILE = "poses.csv"
@@ -102,6 +103,21 @@ class TrainingSet:
             category=self.category,
             distances=self.distances[idx] if len(self.distances) else self.distances,
         )
+
+    def object_height_m(self, camera: Camera | Sequence[Camera]) -> float:
+        """The object's height in metres from the training camera(s) and ``distances``.
+
+        Raises
+        ------
+        ValueError
+            If a row has no distance or no box (:func:`posevote.camera.object_height_from_distances`).
+        """
+        if len(self.distances) != len(self) or not np.all(np.isfinite(self.distances)):
+            raise ValueError("the object's height from the training camera needs a distance_m "
+                             "in every row of poses.csv")
+        if not np.all(np.isfinite(self.boxes)):
+            raise ValueError("the object's height from distance_m needs the box columns")
+        return object_height_from_distances(self.boxes[:, 3], self.distances, camera)
 
     def load_images(self) -> list[NDArray[np.float64]]:
         """Read every image (grey, float in [0, 1])."""
