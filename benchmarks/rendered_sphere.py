@@ -58,9 +58,9 @@ CANVAS = (256, 256)
 MESHES = {"r2d2.urdf": (0.0, 0.0, 0.0), "duck_vhacd.urdf": (np.pi / 2, 0.0, 0.0)}
 
 
-def training_views(mesh: str) -> tuple[list, np.ndarray]:
+def training_views(mesh: str, elevations: tuple[float, ...]) -> tuple[list, np.ndarray]:
     views, poses = [], []
-    for el in ELEVATIONS_DEG:
+    for el in elevations:
         az = np.radians(np.arange(0, 360, AZIMUTH_STEP_DEG))
         for v in render_turntable(az, size=SIZE, elevation_deg=el, distance=None, mesh=mesh,
                                   base_euler=MESHES[mesh]):
@@ -73,8 +73,9 @@ def geodesic_deg(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.degrees(np.arccos(np.clip((np.trace(a @ b.T) - 1.0) / 2.0, -1.0, 1.0))))
 
 
-def run_chunk(mesh: str, params: dict, seeds: list[int], clean: bool = False) -> list[dict]:
-    views, poses = training_views(mesh)
+def run_chunk(mesh: str, params: dict, seeds: list[int], clean: bool = False,
+              elevations: tuple[float, ...] = ELEVATIONS_DEG) -> list[dict]:
+    views, poses = training_views(mesh, elevations)
     focal = render_focal(SIZE)
     height = object_height_from_distances([v.box[3] for v in views], [v.distance for v in views],
                                           Camera(fx=focal, fy=focal, cx=0.0, cy=0.0))
@@ -88,7 +89,7 @@ def run_chunk(mesh: str, params: dict, seeds: list[int], clean: bool = False) ->
     for seed in seeds:
         rng = np.random.default_rng(seed)
         az = float(rng.uniform(0.0, 2 * np.pi))
-        el = float(rng.uniform(-30.0, 60.0))
+        el = float(rng.uniform(min(elevations), max(elevations)))
         view = render_turntable(np.array([az]), size=SIZE, elevation_deg=el, distance=None,
                                 mesh=mesh, base_euler=MESHES[mesh])[0]
         pasted = paste_on_clutter(view.image, view.box, rng=rng, canvas_shape=CANVAS,
@@ -122,6 +123,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--images", type=int, default=40)
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--elevations", default=",".join(map(str, ELEVATIONS_DEG)),
+                    help="training elevations, degrees (tests drawn between the extremes)")
     ap.add_argument("--clean", action="store_true",
                     help="test views as rendered, on black (the default preset): the sphere "
                          "model without clutter")
@@ -129,22 +132,24 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--markdown", help="also write the printed report here")
     args = ap.parse_args(argv)
     params = parse_settings(args.param)
+    elevations = tuple(float(e) for e in args.elevations.split(","))
     seeds = [args.seed * 100_000 + i for i in range(args.images)]
     chunks = [seeds[i::args.jobs] for i in range(args.jobs)]
     t0 = time.perf_counter()
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
         records = sorted((r for part in pool.map(run_chunk, [args.mesh] * len(chunks),
                                                  [params] * len(chunks), chunks,
-                                                 [args.clean] * len(chunks)) for r in part),
+                                                 [args.clean] * len(chunks),
+                                                 [elevations] * len(chunks)) for r in part),
                          key=lambda r: r["seed"])
     wall = time.perf_counter() - t0
     report = io.StringIO()
     with contextlib.redirect_stdout(report):
         rot = np.array([r["rotation_deg"] for r in records])
         tra = np.array([r["translation_pct"] for r in records])
-        print(f"rendered sphere, {args.mesh}: {len(ELEVATIONS_DEG) * 360 // AZIMUTH_STEP_DEG} "
+        print(f"rendered sphere, {args.mesh}: {len(elevations) * 360 // AZIMUTH_STEP_DEG} "
               f"training views (azimuth every {AZIMUTH_STEP_DEG} deg, elevations "
-              f"{ELEVATIONS_DEG}), {len(records)} test images "
+              f"{elevations}), {len(records)} test images "
               f"{'as rendered, on black' if args.clean else 'pasted on clutter'}; preset "
               f"{'default' if args.clean else 'cluttered'}, overrides {params or 'none'}")
         print(f"rotation error: median {np.median(rot):.2f} deg, mean {np.mean(rot):.2f} deg, "
