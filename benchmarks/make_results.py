@@ -56,7 +56,12 @@ The whole viewing sphere (issue 28, a first measurement): pybullet's r2d2
 rendered at elevations -30 to 60°, tested pasted on clutter, with rotation
 and translation errors in the camera frame:
 [`results/rendered_sphere.md`](results/rendered_sphere.md)
-(`python benchmarks/rendered_sphere.py --markdown docs/results/rendered_sphere.md`).
+(`python benchmarks/rendered_sphere.py --markdown docs/results/rendered_sphere.md`); the
+same views as rendered, on black:
+[`results/rendered_sphere_clean.md`](results/rendered_sphere_clean.md) (`--clean`); one
+elevation in the same clutter:
+[`results/rendered_sphere_turntable.md`](results/rendered_sphere_turntable.md)
+(`--elevations 15`).
 
 One estimate with its viewpoints probed by 1 or 2 threads (`n_jobs`, the same
 estimate either way): [`results/time_threads.md`](results/time_threads.md)
