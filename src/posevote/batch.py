@@ -235,23 +235,16 @@ def estimate_bop_scene(estimator: Any, scene: str | Path, *, obj_id: int, max_ob
     """
     import time
 
-    from posevote.camera import Camera
-    from posevote.data.bop import _image_file, _load_json, _numbers, results_rows
+    from posevote.data.bop import read_bop_images, results_rows
 
     folder = Path(scene)
     scene_id = int(folder.name) if folder.name.isdigit() else 0
-    cams = _load_json(folder / "scene_camera.json")
     lines = []
-    for key in sorted((k for k in cams if k.isdigit()), key=int):
-        where = f"{folder / 'scene_camera.json'}, image {key}"
-        K = _numbers(cams[key].get("cam_K") if isinstance(cams[key], dict) else None, 9,
-                     where=where)
-        camera = Camera.from_dict({"K": K.reshape(3, 3).tolist()}, where=where)
+    for im_id, image, camera in read_bop_images(folder):
         start = time.perf_counter()
-        found = estimator.estimate_objects(_image_file(folder, "rgb", f"{int(key):06d}"),
-                                           max_objects, camera=camera)
+        found = estimator.estimate_objects(image, max_objects, camera=camera)
         seconds = time.perf_counter() - start
-        lines += [results_rows(scene_id, int(key), obj_id, r.best.score, r.best.R_cam_obj,
+        lines += [results_rows(scene_id, im_id, obj_id, r.best.score, r.best.R_cam_obj,
                                r.best.t_cam_obj, seconds)
                   for r in found if r.best is not None and r.best.t_cam_obj is not None]
         if progress is not None:

@@ -97,6 +97,32 @@ def _image_file(folder: Path, kind: str, stem: str) -> Path:
     raise FileNotFoundError(f"BOP image not found: {folder / kind / stem}.png")
 
 
+def _camera(cams: dict[str, Any], key: str, path: Path) -> Camera:
+    """The camera of image ``key`` in ``scene_camera.json``."""
+    where = f"{path}, image {key}"
+    entry = cams.get(key)
+    if not isinstance(entry, dict) or "cam_K" not in entry:
+        raise ValueError(f"{where}: no cam_K")
+    K = _numbers(entry["cam_K"], 9, where=where)
+    return Camera.from_dict({"K": K.reshape(3, 3).tolist()}, where=where)
+
+
+def read_bop_images(scene: str | Path) -> list[tuple[int, Path, Camera]]:
+    """Every image of a BOP scene with its id and camera (``scene_camera.json``), by id.
+
+    Raises
+    ------
+    FileNotFoundError, ValueError
+        On missing or malformed files (the message names the file and image id).
+    """
+    folder = Path(scene)
+    path = folder / "scene_camera.json"
+    cams = _load_json(path)
+    keys = sorted((k for k in cams if k.isdigit()), key=int)
+    return [(int(k), _image_file(folder, "rgb", f"{int(k):06d}"), _camera(cams, k, path))
+            for k in keys]
+
+
 def read_bop_scene(scene: str | Path, *, obj_id: int, min_visible: float = 0.1) -> BopScene:
     """The views of object ``obj_id`` in a BOP scene folder (the module docstring).
 
@@ -133,12 +159,7 @@ def read_bop_scene(scene: str | Path, *, obj_id: int, min_visible: float = 0.1) 
         annotations = gt[key]
         if not isinstance(annotations, list):
             raise ValueError(f"{where}: expected a list of annotations")
-        cam_entry = cams.get(key)
-        if not isinstance(cam_entry, dict) or "cam_K" not in cam_entry:
-            raise ValueError(f"{folder / 'scene_camera.json'}, image {key}: no cam_K")
-        K = _numbers(cam_entry["cam_K"], 9, where=f"{folder / 'scene_camera.json'}, image {key}")
-        camera = Camera.from_dict({"K": K.reshape(3, 3).tolist()},
-                                  where=f"{folder / 'scene_camera.json'}, image {key}")
+        camera = _camera(cams, key, folder / "scene_camera.json")
         infos = info.get(key, [])
         for index, ann in enumerate(annotations):
             if not isinstance(ann, dict) or ann.get("obj_id") != obj_id:
