@@ -342,8 +342,8 @@ def estimate(model: Path, images: tuple[Path, ...], as_json: bool, as_csv: bool,
 def _pose_line(b: Any) -> str:
     return (f"azimuth {b.azimuth_deg:.1f} deg  elevation {b.elevation_deg:.1f} deg  "
             f"in-plane {b.inplane_deg:.1f} deg  scale {b.scale:.3f}  "
-            f"position ({b.position[0]:.1f}, {b.position[1]:.1f}) px  score {b.score:.3f}"
-            f"{'' if b.refined else '  (not refined)'}")
+            f"position ({b.position[0]:.1f}, {b.position[1]:.1f}) px  score {b.score:.3f}  "
+            f"p {b.probability:.2f}{'' if b.refined else '  (not refined)'}")
 
 
 def _estimate_one(est: Any, image: Path, *, as_json: bool, overlay: Path | None,
@@ -371,7 +371,10 @@ def _estimate_one(est: Any, image: Path, *, as_json: bool, overlay: Path | None,
             click.echo("  t_cam_obj unknown: the model has no object height (train with "
                        "--object-height-m, or --camera and a distance_m column)")
         for rank, m in enumerate(result.modes[1:], start=2):
-            click.echo(f"  mode {rank}: azimuth {m.azimuth_deg:.1f} deg  score {m.score:.3f}")
+            click.echo(f"  mode {rank}: azimuth {m.azimuth_deg:.1f} deg  score {m.score:.3f}  "
+                       f"p {m.probability:.2f}")
+        if result.ambiguous:
+            click.echo("  ambiguous: the best mode is more likely wrong than right (look again)")
     elif result.top_score > 0:
         click.echo(f"no object found (best score {result.top_score:.3f}, not above "
                    f"min_score {est.min_score:g})", err=True)
@@ -490,8 +493,8 @@ def weights(model: Path, output: Path, views: int) -> None:
 
 
 @cli.command()
-@click.argument("protocol", type=click.Choice(["coil-category", "epfl-single", "epfl-10-10",
-                                               "epfl-cv"]))
+@click.argument("protocol", type=click.Choice(["coil-category", "coil-loio", "epfl-single",
+                                               "epfl-10-10", "epfl-cv"]))
 @click.option("--data", required=True, type=click.Path(path_type=Path),
               help="Data folder: ../shared/data, or the dataset's own folder.")
 @click.option("--out", "out", type=click.Path(path_type=Path), default=None,

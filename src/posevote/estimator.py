@@ -44,6 +44,7 @@ from posevote.refinement.appearance import appearance_refine
 from posevote.refinement.fitting import FIT_RADIUS_STEPS, find_modes, refine_mode
 from posevote.refinement.instance import RecognitionOptions, recognize
 from posevote.refinement.local import local_refine
+from posevote.refinement.probability import scored_viewpoints, with_probabilities
 from posevote.results import PoseEstimate
 
 ImageLike = str | Path | NDArray
@@ -111,10 +112,8 @@ class PoseEstimator(GroupedParams):
                  recognition: RecognitionOptions | None = RecognitionOptions(),
                  appearance: AppearanceOptions | None = None, max_modes: int = 3,
                  min_score: float = 0.0, n_jobs: int = 1) -> None:
-        self.weights = weights
-        self.fitting = fitting
-        self.local_refinement = local_refinement
-        self.morph_views = morph_views
+        self.weights, self.fitting = weights, fitting
+        self.local_refinement, self.morph_views = local_refinement, morph_views
         self.edges = edges
         self.kernel = kernel
         self.search = search
@@ -361,13 +360,14 @@ class PoseEstimator(GroupedParams):
         if self.appearance is not None and hyps:
             hyps[0] = appearance_refine(hyps[0], img, model, self._appearance_model(),
                                         self.appearance, verified_box=verified_box)
-        kept = tuple(place_all([h for h in hyps if h.score > self.min_score], camera,
-                               reference_size_px=model.reference_size,
+        kept = with_probabilities([h for h in hyps if h.score > self.min_score], probes)
+        kept = tuple(place_all(kept, camera, reference_size_px=model.reference_size,
                                object_height_m=self.object_height_m_))
         return PoseEstimate(found=bool(kept), best=kept[0] if kept else None, modes=kept,
                             n_test_features=len(feats), seconds=time.perf_counter() - start,
                             instance=instance if kept else "", instance_margin=margin,
-                            top_score=max((h.score for h in hyps), default=0.0))
+                            top_score=max((h.score for h in hyps), default=0.0),
+                            viewpoint_scores=scored_viewpoints(probes))
 
     # -- persistence -------------------------------------------------------------------
     def save(self, path: str | Path) -> None:

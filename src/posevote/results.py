@@ -34,6 +34,10 @@ class Hypothesis:
     t_cam_obj : (float, float, float) or None
         The object's reference point in the camera frame, metres (given a
         camera and a model that knows the object's height).
+    probability : float
+        Chance that the true viewpoint is within 30 degrees of this mode's,
+        calibrated on the development folds
+        (:mod:`posevote.refinement.probability`); NaN when not computed.
     """
 
     azimuth: float
@@ -46,6 +50,7 @@ class Hypothesis:
     refined: bool
     R_cam_obj: tuple[tuple[float, float, float], ...] | None = None
     t_cam_obj: tuple[float, float, float] | None = None
+    probability: float = float("nan")
 
     @property
     def T_cam_obj(self) -> list[list[float]] | None:
@@ -81,6 +86,7 @@ class Hypothesis:
             "box_px": list(self.box),
             "score": self.score,
             "refined": self.refined,
+            "probability": None if math.isnan(self.probability) else self.probability,
             **({} if self.R_cam_obj is None else {"R_cam_obj": [list(r) for r in self.R_cam_obj]}),
             **({} if self.t_cam_obj is None else {"t_cam_obj_m": list(self.t_cam_obj),
                                                   "T_cam_obj": self.T_cam_obj}),
@@ -114,6 +120,10 @@ class PoseEstimate:
     top_score : float
         The best mode's score before ``min_score`` was applied (0 when there
         was none): what a rejected image scored.
+    viewpoint_scores : tuple of (float, float, float)
+        ``(azimuth, elevation, score)`` of every probed viewpoint, radians:
+        the profile the modes and their probabilities come from (where to
+        look again). Not in :meth:`to_dict`.
     """
 
     found: bool
@@ -124,6 +134,17 @@ class PoseEstimate:
     instance: str = ""
     instance_margin: float = float("nan")
     top_score: float = 0.0
+    viewpoint_scores: tuple[tuple[float, float, float], ...] = ()
+
+    @property
+    def ambiguous(self) -> bool:
+        """True when the best mode is more likely wrong than right (probability under 1/2).
+
+        Two modes of a front/back confusion, or an object that looks the same
+        from every side (a ring, a plain can: the azimuth is undefined), both
+        give it; a robot should look again rather than act on the estimate.
+        """
+        return self.best is not None and not (self.best.probability >= 0.5)
 
     def to_dict(self) -> dict[str, Any]:
         """Plain dict for files and reports (degrees, pixels)."""
@@ -136,4 +157,5 @@ class PoseEstimate:
             "instance": self.instance,
             "instance_margin": None if math.isnan(self.instance_margin) else self.instance_margin,
             "top_score": self.top_score,
+            "ambiguous": self.ambiguous,
         }

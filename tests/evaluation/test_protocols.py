@@ -1,6 +1,6 @@
 import pytest
 
-from posevote.evaluation.protocols import PROTOCOLS, epfl_single, load_protocol
+from posevote.evaluation.protocols import PROTOCOLS, epfl_cv, epfl_single, load_protocol
 
 
 def test_unknown_protocol_and_missing_data(tmp_path):
@@ -28,6 +28,20 @@ def test_coil_category_splits(coil_dir):
     assert proto.rows[-3].params["recognition"].search is False
 
 
+def test_coil_loio_leaves_each_instance_out_once(coil_dir):
+    proto = load_protocol("coil-loio", coil_dir.parent)
+    assert len(proto.splits) == 16
+    left_out = [s.test.instances[0] for s in proto.splits]
+    assert len(set(left_out)) == 16
+    for s in proto.splits:
+        assert len(set(s.test.instances)) == 1 and len(s.test.images) == 72
+        assert s.test.instances[0] not in s.train.instances
+        assert len(s.train.images) % 18 == 0
+    half = {s.name.split("-")[0]: s.half_turn for s in proto.splits}
+    assert half == {"cars": False, "boxes": True, "bottles": True}
+    assert proto.main_row in {r.name for r in proto.rows}
+
+
 def test_epfl_protocols(epfl_dir):
     single = load_protocol("epfl-single", epfl_dir.parent.parent)
     assert [len(s.train.images) for s in single.splits] == [15, 30, 40]
@@ -35,12 +49,24 @@ def test_epfl_protocols(epfl_dir):
         assert len(s.train.images) + len(s.test.images) == 118
         assert not set(s.train.images) & set(s.test.images)
     cv = load_protocol("epfl-cv", epfl_dir)
-    a, b = cv.splits
-    assert set(a.train.instances) == set(b.test.instances) == {f"car{c:02d}" for c in range(1, 6)}
+    assert len(cv.splits) == 5
+    tested = [sorted(set(s.test.instances)) for s in cv.splits]
+    assert tested[0] == ["car01", "car02"] and tested[-1] == ["car09", "car10"]
+    for s in cv.splits:
+        # eight cars train, the other two test: every car is tested once, never on its own model
+        assert len(set(s.train.instances)) == 8
+        assert not set(s.train.instances) & set(s.test.instances)
+    assert sorted(n for t in tested for n in t) == [f"car{c:02d}" for c in range(1, 11)]
+    a, b = epfl_cv(epfl_dir, folds=2).splits
+    assert set(a.test.instances) == set(b.train.instances) == {f"car{c:02d}" for c in range(1, 6)}
+    for bad in (1, 11, 2.5):
+        with pytest.raises(ValueError, match="folds"):
+            epfl_cv(epfl_dir, folds=bad)
     # cars 11-20 are held out: their images are not in ../shared
     with pytest.raises(FileNotFoundError, match="EPFL image not found"):
         load_protocol("epfl-10-10", epfl_dir)
-    assert set(PROTOCOLS) == {"coil-category", "epfl-single", "epfl-10-10", "epfl-cv"}
+    assert set(PROTOCOLS) == {"coil-category", "coil-loio", "epfl-single", "epfl-10-10",
+                              "epfl-cv"}
 
 
 def test_epfl_single_on_development_cars(epfl_dir):
@@ -68,7 +94,7 @@ def test_epfl_10_10_default_rows_exist():
 def test_every_row_builds_an_estimator_from_its_protocols_preset(coil_dir, epfl_dir):
     from posevote import PoseEstimator
 
-    for name in ("coil-category", "epfl-single", "epfl-cv"):
+    for name in ("coil-category", "coil-loio", "epfl-single", "epfl-cv"):
         proto = load_protocol(name, coil_dir.parent)
         assert proto.main_row in {r.name for r in proto.rows}
         # --rows takes a comma-separated list: a row's name has no comma

@@ -5,11 +5,17 @@ from __future__ import annotations
 import csv
 
 from posevote.evaluation.protocols import Protocol, Row
-from posevote.evaluation.report import RECORD_FIELDS, markdown_table, write_csv, write_report
+from posevote.evaluation.report import (
+    RECORD_FIELDS,
+    markdown_table,
+    split_table,
+    write_csv,
+    write_report,
+)
 
 _METRICS = {"n": 2, "median": 1.5, "mean": 2.0, "p90": 3.0, "under_22_5": 100.0,
-            "under_45": 100.0, "detection_rate": None, "recognition_rate": None,
-            "median_seconds": 0.01}
+            "under_45": 100.0, "flip_rate": 12.5, "detection_rate": None,
+            "recognition_rate": None, "median_seconds": 0.01}
 
 
 def _summary():
@@ -23,6 +29,20 @@ def test_markdown_table_has_every_row():
     table = markdown_table(_summary())
     assert "| paper | all | 2 | 1.50 | 2.00 |" in table and "| paper | g |" in table
     assert "not available: needs data" in table and "| unrun | – | not run |" in table
+    assert "| flip % |" in table and "| 100.0 | 12.5 |" in table
+
+
+def test_split_table_gives_each_fold_and_the_spread():
+    summary = _summary()
+    assert split_table(summary) == ""          # one split or none: no table
+    other = {**_METRICS, "median": 3.5, "flip_rate": 2.5}
+    summary["rows"][0]["splits"] = {"fold1": _METRICS, "fold2": other}
+    summary["rows"][0]["spread"] = {"median": {"min": 1.5, "max": 3.5, "std": 1.0},
+                                    "flip_rate": {"min": 2.5, "max": 12.5, "std": 5.0}}
+    table = split_table(summary)
+    assert "| paper | fold1 | 2 | 1.50 |" in table and "| paper | fold2 | 2 | 3.50 |" in table
+    assert "spread over 2 splits" in table and "1.50-3.50 (sd 1.00)" in table
+    assert "2.5-12.5 (sd 5.0)" in table
 
 
 def test_csv_and_report_say_what_each_row_runs(tmp_path):

@@ -18,6 +18,12 @@ def test_run_resume_and_report(tiny_protocol, tmp_path):
     row = summary["rows"][0]
     assert row["overall"]["n"] == 4 and row["overall"]["median"] < 20
     assert row["overall"]["detection_rate"] == 100.0
+    assert row["overall"]["flip_rate"] == 0.0
+    assert list(row["splits"]) == ["only"] and row["splits"]["only"]["n"] == 4
+    assert set(row["spread"]) >= {"median", "mean", "under_45", "flip_rate"}
+    rec = read_records(out / "records" / f"{slug('weights + fitting')}__only.jsonl")[0]
+    assert 0.0 <= rec["probability"] <= 1.0 and rec["half_turn"] is False
+    assert len(rec["profile"]) >= 2 and all(len(p) == 3 for p in rec["profile"])
     assert summary["rows"][1] == {"name": "later", "available": False, "note": "arrives later"}
     for name in ("summary.json", "results.csv", "report.md", "error_histogram.png",
                  "per_instance.png", "scatter.png", "worst_cases.png"):

@@ -3,7 +3,7 @@
 Plots, for the protocol's main row:
 
 - ``error_histogram.png``: distribution of the azimuth error (Fig. 8);
-- ``per_instance.png``: mean and median error of each test instance (Fig. 7
+- ``per_instance.png``: mean and median error and flip rate of each test instance (Fig. 7
   bottom);
 - ``scatter.png``: estimated against true azimuth (front/back confusions
   are the off-diagonal bands 180 degrees away);
@@ -28,10 +28,11 @@ from posevote.evaluation.protocols import Protocol
 #: Fields of a record, in CSV column order.
 RECORD_FIELDS = (
     "row", "split", "image", "instance", "group", "truth_deg", "estimate_deg", "error_deg",
-    "found", "score", "second_deg", "second_score", "inplane_deg", "scale", "u", "v",
+    "found", "score", "probability", "second_deg", "second_score", "second_probability",
+    "inplane_deg", "scale", "u", "v",
     "box_x", "box_y", "box_w", "box_h", "truth_box_x", "truth_box_y", "truth_box_w",
     "truth_box_h", "iou", "detected", "seen_instance", "recognised", "instance_margin",
-    "seconds",
+    "half_turn", "seconds",
 )
 
 
@@ -45,27 +46,59 @@ def _fmt(value: Any, digits: int = 1) -> str:
 
 def markdown_table(summary: dict[str, Any]) -> str:
     """The rows of a summary as a Markdown table, overall then per group."""
-    head = ("| row | group | n | median ° | mean ° | p90 ° | % < 22.5° | % < 45° | detected % "
-            "| recognised % | features kept % | s / image |\n"
-            "|---|---|---|---|---|---|---|---|---|---|---|---|\n")
+    head = ("| row | group | n | median ° | mean ° | p90 ° | % < 22.5° | % < 45° | flip % "
+            "| detected % | recognised % | features kept % | s / image |\n"
+            "|---|---|---|---|---|---|---|---|---|---|---|---|---|\n")
     lines = []
     for row in summary["rows"]:
         if not row.get("available", True):
             lines.append(f"| {row['name']} | – | not available: {row['note']} |"
-                         + " |" * 9)
+                         + " |" * 10)
             continue
         if "overall" not in row:
-            lines.append(f"| {row['name']} | – | not run |" + " |" * 9)
+            lines.append(f"| {row['name']} | – | not run |" + " |" * 10)
             continue
         parts = [("all", row["overall"])] + list(row["groups"].items())
         for group, m in parts:
             lines.append(
                 f"| {row['name']} | {group} | {m['n']} | {_fmt(m['median'], 2)} "
                 f"| {_fmt(m['mean'], 2)} | {_fmt(m['p90'])} | {_fmt(m['under_22_5'])} "
-                f"| {_fmt(m['under_45'])} | {_fmt(m['detection_rate'])} "
+                f"| {_fmt(m['under_45'])} | {_fmt(m.get('flip_rate'))} "
+                f"| {_fmt(m['detection_rate'])} "
                 f"| {_fmt(m['recognition_rate'])} | {_fmt(row.get('features_kept_percent'))} "
                 f"| {_fmt(m['median_seconds'], 3)} |")
     return head + "\n".join(lines) + "\n"
+
+
+def _range(spread: dict[str, dict[str, float]], key: str, digits: int = 1) -> str:
+    if key not in spread:
+        return "–"
+    v = spread[key]
+    return f"{v['min']:.{digits}f}-{v['max']:.{digits}f} (sd {v['std']:.{digits}f})"
+
+
+def split_table(summary: dict[str, Any]) -> str:
+    """Each row's figures per split (the folds of a cross-validation) and their spread.
+
+    Empty when no row has more than one split.
+    """
+    head = ("| row | split | n | median ° | mean ° | % < 45° | flip % | detected % |\n"
+            "|---|---|---|---|---|---|---|---|\n")
+    lines = []
+    for row in summary["rows"]:
+        splits = row.get("splits") or {}
+        if len(splits) < 2:
+            continue
+        for name, m in splits.items():
+            lines.append(f"| {row['name']} | {name} | {m['n']} | {_fmt(m['median'], 2)} "
+                         f"| {_fmt(m['mean'], 2)} | {_fmt(m['under_45'])} "
+                         f"| {_fmt(m.get('flip_rate'))} | {_fmt(m['detection_rate'])} |")
+        spread = row.get("spread", {})
+        lines.append(f"| {row['name']} | **spread over {len(splits)} splits** | "
+                     f"| {_range(spread, 'median', 2)} | {_range(spread, 'mean')} "
+                     f"| {_range(spread, 'under_45')} | {_range(spread, 'flip_rate')} "
+                     f"| {_range(spread, 'detection_rate')} |")
+    return head + "\n".join(lines) + "\n" if lines else ""
 
 
 def write_csv(records: Sequence[dict[str, Any]], path: Path) -> None:
@@ -102,6 +135,9 @@ def write_report(protocol: Protocol, summary: dict[str, Any],
     text = (f"# {protocol.name}\n\n{protocol.description}\n{sub}\n"
             f"Every row starts from the `{protocol.preset}` preset (posevote.presets, "
             f"docs/DEFAULTS.md) and changes:\n\n{rows}\n\n{markdown_table(summary)}\n"
+            + (f"Per split, with the spread over the splits (flip: error over 135°, or over "
+               f"67.5° on the half circle):\n\n{split_table(summary)}\n"
+               if split_table(summary) else "")
             + (f"Published numbers to compare with:\n\n{protocol.published}\n"
                if protocol.published else "")
             + (f"Plots ({main}):\n\n" + "\n".join(f"![{p}]({p})" for p in plots) + "\n"
@@ -123,6 +159,13 @@ def _save(fig: Any, path: Path) -> None:
     _figure().close(fig)
 
 
+def _flip_rate(records: Sequence[dict[str, Any]]) -> float:
+    from posevote.evaluation.metrics import flip_threshold_deg
+
+    return float(100.0 * np.mean([r["error_deg"] > flip_threshold_deg(bool(r.get("half_turn")))
+                                  for r in records]))
+
+
 def plot_error_histogram(records: Sequence[dict[str, Any]], path: Path, *, title: str = "") -> None:
     """Histogram of the azimuth errors, 5-degree bins (Fig. 8)."""
     plt = _figure()
@@ -131,7 +174,8 @@ def plot_error_histogram(records: Sequence[dict[str, Any]], path: Path, *, title
     ax.hist(err, bins=np.arange(0, 185, 5), color="0.35")
     ax.set_xlabel("azimuth error (degrees)")
     ax.set_ylabel("test images")
-    ax.set_title(f"{title}  (median {np.median(err):.1f}°, mean {err.mean():.1f}°)", fontsize=9)
+    ax.set_title(f"{title}  (median {np.median(err):.1f}°, mean {err.mean():.1f}°, "
+                 f"flips {_flip_rate(records):.1f}%)", fontsize=9)
     _save(fig, path)
 
 
@@ -146,7 +190,13 @@ def plot_per_instance(records: Sequence[dict[str, Any]], path: Path, *, title: s
     ax.bar(x + 0.2, [np.median(e) for e in err], 0.4, label="median", color="0.2")
     ax.set_xticks(x, names, rotation=45, ha="right", fontsize=8)
     ax.set_ylabel("azimuth error (degrees)")
-    ax.legend(fontsize=8)
+    flips = ax.twinx()
+    flips.plot(x, [_flip_rate([r for r in records if r["instance"] == n]) for n in names],
+               "o", color="tab:red", label="flip rate")
+    flips.set_ylim(0, 100)
+    flips.set_ylabel("flips (% of test images)", color="tab:red")
+    handles = ax.get_legend_handles_labels()[0] + flips.get_legend_handles_labels()[0]
+    ax.legend(handles=handles, fontsize=8)
     ax.set_title(title, fontsize=9)
     _save(fig, path)
 
@@ -163,7 +213,7 @@ def plot_scatter(records: Sequence[dict[str, Any]], path: Path, *, title: str = 
     ax.set_ylim(0, 360)
     ax.set_xlabel("true azimuth (degrees)")
     ax.set_ylabel("estimated azimuth (degrees)")
-    ax.set_title(title, fontsize=9)
+    ax.set_title(f"{title}\nflips {_flip_rate(records):.1f}% (the bands 180° off)", fontsize=9)
     _save(fig, path)
 
 

@@ -35,7 +35,7 @@ import os
 import re
 import shutil
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -44,7 +44,7 @@ import numpy as np
 from posevote._io import atomic_write_text, folder_lock, read_records, repair_records
 from posevote._parallel import ordered_map
 from posevote.estimator import PoseEstimator
-from posevote.evaluation.metrics import box_iou, summarize_errors
+from posevote.evaluation.metrics import box_iou, flip_threshold_deg, summarize_errors
 from posevote.evaluation.protocols import Protocol, Row, Split
 from posevote.evaluation.report import write_report
 from posevote.geometry import angular_error
@@ -91,7 +91,7 @@ def estimate_record(model_path: str, task: dict[str, Any]) -> dict[str, Any]:
     result = est.estimate(task["image"])
     seconds = time.perf_counter() - start
     rec: dict[str, Any] = {k: task[k] for k in ("row", "split", "image", "instance", "group",
-                                                 "seen_instance")}
+                                                 "seen_instance", "half_turn")}
     truth_box = task["box"]
     rec["truth_deg"] = math.degrees(task["truth"]) % 360.0
     rec.update(dict(zip(("truth_box_x", "truth_box_y", "truth_box_w", "truth_box_h"),
@@ -111,8 +111,14 @@ def estimate_record(model_path: str, task: dict[str, Any]) -> dict[str, Any]:
                recognised=result.instance,
                instance_margin=None if math.isnan(result.instance_margin)
                else result.instance_margin)
+    rec["probability"] = best.probability
     if len(result.modes) > 1:
-        rec.update(second_deg=result.modes[1].azimuth_deg, second_score=result.modes[1].score)
+        rec.update(second_deg=result.modes[1].azimuth_deg, second_score=result.modes[1].score,
+                   second_probability=result.modes[1].probability)
+    # The score profile over viewpoints, to calibrate the mode probabilities on
+    # (benchmarks/calibrate_modes.py).
+    rec["profile"] = [[round(math.degrees(a), 2), round(math.degrees(e), 2), round(v, 5)]
+                      for a, e, v in result.viewpoint_scores]
     if truth_box is not None and all(np.isfinite(truth_box)):
         iou = float(box_iou(best.box, truth_box))
         rec.update(iou=iou, detected=iou >= 0.5)
@@ -351,8 +357,10 @@ def summarize(protocol: Protocol, rows: Sequence[Row], records: Sequence[dict[st
         summary of :func:`posevote.evaluation.metrics.summarize_errors`,
         ``detection_rate`` (percent, when boxes are known),
         ``recognition_rate`` (percent of the views of trained instances whose
-        recognised instance is the true one), ``median_seconds``), and the models' facts (training
-        time, features kept).
+        recognised instance is the true one), ``median_seconds``), the same
+        per split (``splits``) with their ``spread`` (min, max and standard
+        deviation over the splits of each figure), and the models' facts
+        (training time, features kept).
     """
     out_rows = []
     for row in rows:
@@ -365,6 +373,10 @@ def summarize(protocol: Protocol, rows: Sequence[Row], records: Sequence[dict[st
                                for g in sorted({r["group"] for r in mine})}
             entry["instances"] = {n: _metrics([r for r in mine if r["instance"] == n])
                                   for n in sorted({r["instance"] for r in mine})}
+            entry["splits"] = {s.name: _metrics([r for r in mine if r["split"] == s.name])
+                               for s in protocol.splits
+                               if any(r["split"] == s.name for r in mine)}
+            entry["spread"] = _spread(entry["splits"].values())
             entry["models"] = {k: v for k, v in facts.items()
                                if k.startswith(slug(row.name) + "__")}
             kept = [v["features_kept_percent"] for v in entry["models"].values()]
@@ -374,8 +386,25 @@ def summarize(protocol: Protocol, rows: Sequence[Row], records: Sequence[dict[st
             "rows": out_rows}
 
 
+_SPREAD_KEYS = ("median", "mean", "under_45", "flip_rate", "detection_rate")
+
+
+def _spread(per_split: Iterable[dict[str, Any]]) -> dict[str, dict[str, float]]:
+    """Min, max and standard deviation over the splits (the folds) of each headline figure."""
+    parts = list(per_split)
+    out = {}
+    for key in _SPREAD_KEYS:
+        vals = np.array([m[key] for m in parts if m.get(key) is not None], dtype=float)
+        if vals.size:
+            out[key] = {"min": float(vals.min()), "max": float(vals.max()),
+                        "std": float(vals.std())}
+    return out
+
+
 def _metrics(records: Sequence[dict[str, Any]]) -> dict[str, Any]:
-    m: dict[str, Any] = summarize_errors([r["error_deg"] for r in records])
+    m: dict[str, Any] = summarize_errors(
+        [r["error_deg"] for r in records],
+        flip_deg=[flip_threshold_deg(bool(r.get("half_turn", False))) for r in records])
     det = [r["detected"] for r in records if r.get("detected") is not None]
     m["detection_rate"] = float(100.0 * np.mean(det)) if det else None
     rec = [r.get("recognised") == r["instance"] for r in records
