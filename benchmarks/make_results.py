@@ -10,13 +10,15 @@ other scripts in this folder write. Nothing in RESULTS.md is typed by hand.
 Usage::
 
     python benchmarks/make_results.py [--run] [--data ../shared/data] [--jobs 2]
-        [--results results] [--epfl-cv-every 4] [--protocols coil-category,epfl-single,epfl-cv]
+        [--results results] [--epfl-cv-every 4]
+        [--protocols coil-category,coil-loio,epfl-single,epfl-cv]
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import shlex
 import shutil
 import subprocess
 import sys
@@ -63,6 +65,16 @@ elevation in the same clutter:
 [`results/rendered_sphere_turntable.md`](results/rendered_sphere_turntable.md)
 (`--elevations 15`).
 
+All 40 development objects of `../shared/data/coil-100` (the paper's 16 and
+the 24 added for cross-validation, among them objects that look alike from
+every side), the same protocol, with each estimate's best-mode probability:
+[`results/coil_instance_40.md`](results/coil_instance_40.md).
+
+Mode probabilities (issue 26): how often the best mode is right against the
+probability it was given, on the records of the five-fold `epfl-cv` and of
+`coil-loio`: [`results/mode_calibration.md`](results/mode_calibration.md),
+![reliability](results/mode_calibration.png)
+
 One estimate with its viewpoints probed by 1 or 2 threads (`n_jobs`, the same
 estimate either way): [`results/time_threads.md`](results/time_threads.md)
 (`python benchmarks/time_threads.py --markdown docs/results/time_threads.md`).
@@ -102,7 +114,7 @@ def main() -> None:
     parser.add_argument("--results", type=Path, default=ROOT / "results")
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("--epfl-cv-every", type=int, default=1)
-    parser.add_argument("--protocols", default="coil-category,epfl-single,epfl-cv")
+    parser.add_argument("--protocols", default="coil-category,coil-loio,epfl-single,epfl-cv")
     args = parser.parse_args()
     protocols = [p for p in args.protocols.split(",") if p]
     walls_path = args.results / "walls.json"
@@ -136,6 +148,9 @@ def main() -> None:
         wall = walls.get(proto)
         summary = json.loads((src / "summary.json").read_text())
         every = f" --every {summary['every']}" if summary.get("every", 1) > 1 else ""
+        ran = [r["name"] for r in summary["rows"] if "overall" in r]
+        if len(ran) < len([r for r in summary["rows"] if r.get("available", True)]):
+            every += " --rows " + shlex.quote(",".join(ran))
         wall_line = (f"Wall time: {wall['seconds'] / 60:.1f} min with `--jobs {wall['jobs']}` "
                      f"(`{wall['command'].replace('-m posevote.cli', 'posevote')}`).\n" if wall else
                      f"Wall time: {summary.get('wall_seconds_total', float('nan')) / 60:.1f} min "

@@ -21,6 +21,10 @@ def test_estimates_between_training_views(fitted_estimator, draw):
         assert np.degrees(angular_error(result.best.azimuth, np.radians(truth))) < 10.0
         x, y, w, h = object_box(img)
         assert result.best.position == pytest.approx((x + (w - 1) / 2, y + (h - 1) / 2), abs=6.0)
+        # a clear view: its mode is probable, the profile it comes from is every probed viewpoint
+        assert 0.5 < result.best.probability <= 1.0 and not result.ambiguous
+        assert sum(m.probability for m in result.modes) <= 1.0 + 1e-9
+        assert len(result.viewpoint_scores) == len(fitted_estimator.model_.view_azimuth)
 
 
 def test_finds_shifted_rotated_scaled_object(synthetic_training, draw):

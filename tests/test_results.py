@@ -29,3 +29,18 @@ def test_estimate_serialises_to_json():
     est = PoseEstimate(found=True, best=h, modes=(h,), n_test_features=12, seconds=0.01)
     payload = json.loads(json.dumps(est.to_dict()))
     assert payload["found"] is True and len(payload["modes"]) == 1
+
+
+def test_ambiguous_when_the_best_mode_is_more_likely_wrong():
+    sure, coin = _hyp(probability=0.9), _hyp(probability=0.45)
+    assert not PoseEstimate(found=True, best=sure, modes=(sure,)).ambiguous
+    est = PoseEstimate(found=True, best=coin, modes=(coin, sure))
+    assert est.ambiguous and est.to_dict()["ambiguous"] is True
+    assert est.to_dict()["best"]["probability"] == 0.45
+    # no probability computed: nothing says the estimate can be trusted
+    assert PoseEstimate(found=True, best=_hyp(), modes=(_hyp(),)).ambiguous
+    assert _hyp().to_dict()["probability"] is None
+    assert not PoseEstimate(found=False, best=None).ambiguous
+    # the profile the probabilities come from stays out of the JSON
+    est = PoseEstimate(found=True, best=sure, modes=(sure,), viewpoint_scores=((0.0, 0.0, 1.0),))
+    assert "viewpoint_scores" not in est.to_dict()
