@@ -236,6 +236,19 @@ def print_report(args, params, objects, rows, results, wall) -> None:
             line += f"{100 * np.mean(pos <= 5):>9.1f}%{100 * np.mean(errs > 30):>8.1f}%"
         print(line)
     last = rows[-1]
+    # Objects that look alike from every side: most of their estimates say so (ambiguous).
+    ambiguous = {r["object"]: float(np.mean(np.array(r[last]["probability"]) < 0.5))
+                 for r in results}
+    undefined = [o for o, share in ambiguous.items() if share > 0.5]
+    if undefined:
+        rest = np.concatenate([r[last]["errors_deg"] for r in results
+                               if r["object"] not in undefined])
+        print(f"azimuth undefined ({last}: over half of an object's estimates ambiguous, best-"
+              f"mode probability < 0.5): objects {', '.join(map(str, undefined))}; the other "
+              f"{len(results) - len(undefined)} objects: median {np.median(rest):.2f}, mean "
+              f"{np.mean(rest):.2f}")
+    print(f"share of ambiguous estimates per object ({last}): " + ", ".join(
+        f"{o}: {100 * share:.0f}%" for o, share in ambiguous.items()))
     print(f"per object ({last}), median/mean: " + ", ".join(
         f"{r['object']}: {np.median(r[last]['errors_deg']):.1f}/"
         f"{np.mean(r[last]['errors_deg']):.1f}" for r in results))
