@@ -7,7 +7,7 @@ Layout of a results folder (``--out``)::
     models/<row>__<split>.npz     trained models (reused when their settings match)
     records/<row>__<split>.jsonl  one JSON line per finished test image
     results.csv                   every record of every row (written at the end)
-    summary.json                  the metrics of every row and group
+    summary.json                  the metrics of every row, group and split
     report.md                     the table beside the published numbers
     wall.json                     wall time of the runs so far (updated as each run goes)
     *.png                         plots (see :mod:`posevote.evaluation.report`)
