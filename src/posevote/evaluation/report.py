@@ -160,10 +160,10 @@ def _save(fig: Any, path: Path) -> None:
 
 
 def _flip_rate(records: Sequence[dict[str, Any]]) -> float:
-    from posevote.evaluation.metrics import flip_threshold_deg
+    from posevote.evaluation.metrics import flip_threshold_deg, summarize_errors
 
-    return float(100.0 * np.mean([r["error_deg"] > flip_threshold_deg(bool(r.get("half_turn")))
-                                  for r in records]))
+    return summarize_errors([r["error_deg"] for r in records], flip_deg=[
+        flip_threshold_deg(bool(r.get("half_turn"))) for r in records])["flip_rate"]
 
 
 def plot_error_histogram(records: Sequence[dict[str, Any]], path: Path, *, title: str = "") -> None:
