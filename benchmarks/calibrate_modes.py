@@ -23,13 +23,13 @@ from __future__ import annotations
 
 import argparse
 import math
-import shlex
 import sys
 from pathlib import Path
 
 import numpy as np
+from _markdown import write_markdown  # noqa: E402
 
-from posevote._io import atomic_write_text, atomic_write_with, read_records
+from posevote._io import atomic_write_with, read_records
 from posevote.geometry import viewing_direction
 from posevote.refinement.probability import MODE_RADIUS, MODE_SHARPNESS, mode_probabilities
 
@@ -177,8 +177,7 @@ def main(argv: list[str] | None = None) -> int:
         plot(p, y, args.plot, f"shipped mode probabilities ({len(recs)} images, "
              f"{', '.join(sorted({r['folder'] for r in recs}))})")
     if args.markdown:
-        command = shlex.join(["python", "benchmarks/calibrate_modes.py", *(argv or sys.argv[1:])])
-        atomic_write_text(args.markdown, f"```\n$ {command}\n```\n\n{text}")
+        write_markdown(args.markdown, __file__, argv, text, fenced=False)
     return 0
 
 

@@ -36,7 +36,6 @@ import contextlib
 import io
 import json
 import os
-import shlex
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -46,6 +45,7 @@ import numpy as np
 
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
+from _markdown import write_markdown  # noqa: E402
 from _settings import parse_settings  # noqa: E402
 
 from posevote import PoseEstimator  # noqa: E402
@@ -208,10 +208,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.json:
         Path(args.json).write_text(json.dumps(results))
     if args.markdown:
-        from posevote._io import atomic_write_text
-
-        command = shlex.join(["python", "benchmarks/coil_instance.py", *(argv or sys.argv[1:])])
-        atomic_write_text(args.markdown, f"```\n$ {command}\n{report.getvalue()}```\n")
+        write_markdown(args.markdown, __file__, argv, report.getvalue())
     return 0
 
 

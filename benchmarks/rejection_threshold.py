@@ -29,7 +29,6 @@ import contextlib
 import io
 import json
 import os
-import shlex
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -38,6 +37,8 @@ from pathlib import Path
 import numpy as np
 
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
+
+from _markdown import write_markdown  # noqa: E402
 
 from posevote import PoseEstimator  # noqa: E402
 from posevote.data import read_coil  # noqa: E402
@@ -134,11 +135,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.json:
         Path(args.json).write_text(json.dumps(results))
     if args.markdown:
-        from posevote._io import atomic_write_text
-
-        command = shlex.join(["python", "benchmarks/rejection_threshold.py",
-                              *(argv or sys.argv[1:])])
-        atomic_write_text(args.markdown, f"```\n$ {command}\n{report.getvalue()}```\n")
+        write_markdown(args.markdown, __file__, argv, report.getvalue())
     return 0
 
 

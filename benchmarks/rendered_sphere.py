@@ -33,7 +33,6 @@ import argparse
 import contextlib
 import io
 import os
-import shlex
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -42,6 +41,7 @@ import numpy as np
 
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
+from _markdown import write_markdown  # noqa: E402
 from _settings import parse_settings  # noqa: E402
 
 from posevote import Camera, PoseEstimator  # noqa: E402
@@ -161,10 +161,7 @@ def main(argv: list[str] | None = None) -> int:
               f"{wall:.0f} s with {args.jobs} processes")
     print(report.getvalue(), end="")
     if args.markdown:
-        from posevote._io import atomic_write_text
-
-        command = shlex.join(["python", "benchmarks/rendered_sphere.py", *(argv or sys.argv[1:])])
-        atomic_write_text(args.markdown, f"```\n$ {command}\n{report.getvalue()}```\n")
+        write_markdown(args.markdown, __file__, argv, report.getvalue())
     return 0
 
 

@@ -22,15 +22,14 @@ import argparse
 import contextlib
 import io
 import os
-import shlex
-import sys
 import tempfile
 import time
 from pathlib import Path
 
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
-from posevote._io import atomic_write_text  # noqa: E402
+from _markdown import write_markdown  # noqa: E402
+
 from posevote.data import read_epfl  # noqa: E402
 from posevote.evaluation.protocols import (  # noqa: E402
     _EPFL_10_10_DEFAULT_ROWS,
@@ -93,8 +92,7 @@ def main(argv: list[str] | None = None) -> int:
               "(s/frame is per process)")
     print(report.getvalue(), end="")
     if args.markdown:
-        command = shlex.join(["python", "benchmarks/time_epfl_10_10.py", *(argv or sys.argv[1:])])
-        atomic_write_text(args.markdown, f"```\n$ {command}\n{report.getvalue()}```\n")
+        write_markdown(args.markdown, __file__, argv, report.getvalue())
     return 0
 
 

@@ -45,7 +45,6 @@ import argparse
 import io
 import json
 import os
-import shlex
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -54,6 +53,7 @@ import numpy as np
 
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
+from _markdown import write_markdown  # noqa: E402
 from _settings import parse_settings  # noqa: E402
 
 from posevote import PoseEstimator  # noqa: E402
@@ -195,8 +195,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.records:
         atomic_write_text(args.records, "".join(line + "\n" for line in records))
     if args.markdown:
-        command = shlex.join(["python", "benchmarks/tune_rendered.py", *sys.argv[1:]])
-        atomic_write_text(args.markdown, f"```\n$ {command}\n{out.getvalue()}```\n")
+        write_markdown(args.markdown, __file__, None, out.getvalue())
     return 0
 
 
