@@ -237,7 +237,10 @@ def print_report(args, params, objects, rows, results, wall) -> None:
     ambiguous = {r["object"]: float(np.mean(np.array(r[last]["probability"]) < 0.5))
                  for r in results}
     undefined = [o for o, share in ambiguous.items() if share > 0.5]
-    if undefined:
+    if len(undefined) == len(results):
+        print(f"azimuth undefined ({last}: over half of an object's estimates ambiguous, best-"
+              "mode probability < 0.5): every object")
+    elif undefined:
         rest = np.concatenate([r[last]["errors_deg"] for r in results
                                if r["object"] not in undefined])
         print(f"azimuth undefined ({last}: over half of an object's estimates ambiguous, best-"

@@ -1,7 +1,10 @@
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
 from posevote.inference import ProbeSet, viewpoint_grid
+from posevote.inference.search import SearchOptions
 
 
 def test_viewpoint_grid_subdivides_turntable(fitted_estimator):
@@ -35,15 +38,22 @@ def test_per_scale_maps_and_chance_correction(fitted_estimator, draw):
     image = draw(np.radians(60))
     feats, shape = extract_edges(image, est.edges, training=False), image.shape
     scales = np.array([0.9, 1.1])
-    maps = [image_maps(*scaled_features(feats, shape, s), est.setup(), sigma=3.0, scale=s)
-            for s in scales]
+
+    def maps_for(options):
+        setup = replace(est.setup(), options=options)
+        return [image_maps(*scaled_features(feats, shape, s), setup, sigma=3.0, scale=s,
+                           search=True) for s in scales]
+
     kw = dict(azimuths=np.radians([40.0, 60.0]), elevations=np.zeros(2), inplanes=np.zeros(1),
               scales=scales, viewpoint_kappa=est.viewpoint_kappa_)
-    raw = probe_poses(est.model_, maps, **kw)
-    corrected = probe_poses(est.model_, maps, chance_correction=True, **kw)
-    assert np.all(corrected.score <= raw.score + 1e-12) and corrected.score.max() > 0
+    raw = probe_poses(est.model_, maps_for(SearchOptions(object_kernel=True)), **kw)
+    corrected = probe_poses(est.model_, maps_for(SearchOptions(object_kernel=True,
+                                                               chance_correction=True)), **kw)
+    # The local chance level only takes away, and the object still scores.
+    assert np.all(corrected.score <= raw.score + 1e-9) and corrected.score.max() > 0
+    assert not np.allclose(corrected.score, raw.score)
     with pytest.raises(ValueError, match="one TestMaps per scale"):
-        probe_poses(est.model_, maps[:1], **kw)
+        probe_poses(est.model_, maps_for(SearchOptions())[:1], **kw)
 
 
 def test_probe_boxes_are_the_viewpoint_box_at_each_scale_around_each_translation():

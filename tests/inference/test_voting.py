@@ -129,6 +129,27 @@ def test_density_options_and_chance(scene):
     assert shape == (50, 60) and np.allclose(half.xy, feats.xy / 2.0)
 
 
+def test_chance_width_subtracts_the_local_chance_level():
+    # An isolated straight contour on the left, dense clutter of every
+    # orientation on the right.
+    rng = np.random.default_rng(11)
+    line = np.stack([np.full(40, 20.0), np.linspace(10, 90, 40)], axis=1)
+    clutter = rng.uniform((70, 10), (115, 90), (1500, 2))
+    feats = EdgeFeatures(xy=np.vstack([line, clutter]),
+                         theta=np.concatenate([np.full(40, np.pi / 2),
+                                               rng.uniform(0, np.pi, 1500)]))
+    kw = {"position_sigma": 2.0, "orientation_kappa": 8.0, "density_cap": 0.6}
+    raw = prepare_test(feats, (100, 120), **kw)
+    local = prepare_test(feats, (100, 120), chance_width=8.0, **kw)
+    on_line = (slice(None), slice(30, 70), 20)
+    in_clutter = (slice(None), slice(30, 70), slice(85, 100))
+    # The contour keeps most of its score; the clutter's falls to about nothing.
+    assert local.density[on_line].max() > 0.8 * raw.density[on_line].max()
+    assert raw.density[in_clutter].mean() > 0.3
+    assert abs(local.density[in_clutter].mean()) < 0.05
+    assert np.all(local.density <= raw.density + 1e-6)
+
+
 def test_restrict_maps_keeps_the_window_only():
     # Features only at a few orientations, so that the last orientation bins
     # are empty (the bin bookkeeping must cope).

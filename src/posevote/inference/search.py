@@ -42,6 +42,9 @@ VOTE_CANDIDATES = 2
 #: before anything is allocated.
 MAX_PROBES = 2_000_000
 MAX_GRID_STEPS = 400
+#: Width of the local chance level, in search kernel widths (``chance_correction``):
+#: chosen on the five epfl-cv folds among 2, 4, 6 and 8 (docs/DEFAULTS.md).
+CHANCE_WIDTH = 4.0
 #: Several objects in one image: a box overlapping one already found by more
 #: than this IoU is the same object found again.
 OBJECT_OVERLAP = 0.3
@@ -77,8 +80,10 @@ class SearchOptions(Options):
         small scales are not favoured by a relatively wider tolerance
         (beyond the paper).
     chance_correction : bool, default False
-        With ``object_kernel``, score each scale by the fraction explained
-        above its chance level (:func:`probe_poses`).
+        Score each probe by what it explains above the local chance level:
+        the search's density less its mean over orientations around each
+        place, blurred at ``CHANCE_WIDTH`` kernel widths
+        (:func:`posevote.inference.voting.prepare_test`; beyond the paper).
     density_cap : float or None, default None
         Saturate the search's test density at this value (a model feature
         is explained or not, however dense the edges around it); None: the
@@ -189,15 +194,17 @@ def image_maps(features: EdgeFeatures, shape: tuple[int, int], setup: SearchSetu
                ) -> TestMaps:
     """The test image tabulated at kernel width ``sigma`` (default: the narrow one).
 
-    ``density_cap`` applies to the search's maps only: the narrow maps of
-    the refinements keep the unsaturated density, whose ridges give the
-    precise alignment.
+    ``density_cap`` and the local chance level apply to the search's maps
+    only: the narrow maps of the refinements keep the unsaturated density,
+    whose ridges give the precise alignment.
     """
-    return prepare_test(features, shape,
-                        position_sigma=setup.position_sigma if sigma is None else sigma,
+    width = setup.position_sigma if sigma is None else sigma
+    local = search and setup.options.chance_correction
+    return prepare_test(features, shape, position_sigma=width,
                         orientation_kappa=ORIENTATION_KAPPA,
                         edge_spacing=setup.edge_spacing / scale,
-                        density_cap=setup.options.density_cap if search else None)
+                        density_cap=setup.options.density_cap if search else None,
+                        chance_width=CHANCE_WIDTH * width if local else None)
 
 
 def scale_maps(features: EdgeFeatures, shape: tuple[int, int], setup: SearchSetup, *,
@@ -390,7 +397,6 @@ def probe_poses(
     n_candidates: int = 3,
     max_voters: int | None = 200,
     max_features: int | None = None,
-    chance_correction: bool = False,
     progress: Callable[[int], None] | None = None,
     n_threads: int = 1,
 ) -> ProbeSet:
@@ -428,12 +434,6 @@ def probe_poses(
     max_features : int or None, optional
         Training features that take part per probe at all (an even subset;
         see :func:`posevote.inference.voting.search_translations`).
-    chance_correction : bool, optional
-        With one set of maps per scale, score ``(p - c) / (1 - c)`` where
-        ``c`` is that scale's chance level (:attr:`TestMaps.chance`): the
-        fraction explained above what random placement explains. Dividing
-        the test features by a larger scale packs the clutter tighter in
-        object units, so without it large scales win on clutter.
     progress : callable, optional
         Called with 1 after each viewpoint.
     n_threads : int, optional
@@ -476,9 +476,6 @@ def probe_poses(
                     scale_maps, feats.xy, feats.theta, feats.weight, inplanes=inplanes,
                     scales=np.ones(1), cell=cell, n_candidates=n_candidates,
                     max_voters=max_voters, max_features=max_features)
-                if chance_correction:
-                    c = min(scale_maps.chance, 0.99)
-                    sc = np.maximum(sc - c, 0.0) / (1.0 - c)
                 score[v, :, k], translation[v, :, k] = sc[:, 0], tr[:, 0] * factor
 
     if n_threads == 1 or n_v < 2:
@@ -542,5 +539,5 @@ def probe(model: PoseModel, maps: TestMaps | list[TestMaps], setup: SearchSetup,
                        scales=scales, viewpoint_kappa=setup.viewpoint_kappa,
                        use_weights=setup.use_weights, k1_cutoff=K1_CUTOFF,
                        max_voters=MAX_VOTERS, max_features=opts.max_search_features,
-                       n_candidates=VOTE_CANDIDATES, chance_correction=opts.chance_correction,
+                       n_candidates=VOTE_CANDIDATES,
                        progress=progress, n_threads=setup.n_threads)

@@ -81,8 +81,9 @@ class TestMaps:
 
 def prepare_test(features: EdgeFeatures, shape: tuple[int, int], *, position_sigma: float,
                  orientation_kappa: float, edge_spacing: float = 2.0,
-                 density_cap: float | None = None, vote_bins: int = 16, density_bins: int = 16,
-                 vote_cutoff: float = 0.2) -> TestMaps:
+                 density_cap: float | None = None, chance_width: float | None = None,
+                 vote_bins: int = 16, density_bins: int = 16, vote_cutoff: float = 0.2
+                 ) -> TestMaps:
     """Sort the test features by orientation and tabulate phi (Eq. 2).
 
     Parameters
@@ -102,6 +103,13 @@ def prepare_test(features: EdgeFeatures, shape: tuple[int, int], *, position_sig
         explained by an image edge or not, however dense the edges around
         it (beyond the paper; keeps textured clutter from outvoting
         contours and biasing the scale towards small, dense fits).
+    chance_width : float, optional
+        If given, the local chance level is subtracted from phi: the mean
+        of phi over orientations, blurred at this width (pixels). A model
+        feature then scores what an edge explains beyond the edges around
+        it, so that a model dropped in dense clutter, or inside the object's
+        own texture, no longer scores its chance matches (beyond the paper;
+        phi may then be negative).
     vote_bins : int, optional
         Orientation bins used to find compatible pairs when voting.
     density_bins : int, optional
@@ -144,6 +152,10 @@ def prepare_test(features: EdgeFeatures, shape: tuple[int, int], *, position_sig
                                                          borderType=cv2.BORDER_CONSTANT)
     if density_cap is not None:
         np.minimum(density, np.float32(density_cap), out=density)
+    if chance_width is not None:
+        # Reflected at the border, so that the image's edge is not a clearing.
+        density -= cv2.GaussianBlur(density.mean(axis=0), (0, 0), chance_width,
+                                    borderType=cv2.BORDER_REFLECT)[None]
     lut = orientation_kernel(np.linspace(0.0, np.pi / 2, _LUT_SIZE), orientation_kappa)
     cut = orientation_cutoff(orientation_kappa, vote_cutoff)
     radius = int(np.ceil(cut / (np.pi / vote_bins)))
