@@ -22,6 +22,7 @@ from posevote.camera import Camera, place_all
 from posevote.data.images import load_image
 from posevote.features.edges import EdgeFeatures, EdgeOptions, extract_edges, without_box
 from posevote.geometry import box_iou
+from posevote.inference.coverage import rerank_by_coverage
 from posevote.inference.search import (
     OBJECT_MARGIN,
     OBJECT_OVERLAP,
@@ -114,12 +115,8 @@ class PoseEstimator(GroupedParams):
                  min_score: float = 0.0, n_jobs: int = 1) -> None:
         self.weights, self.fitting = weights, fitting
         self.local_refinement, self.morph_views = local_refinement, morph_views
-        self.edges = edges
-        self.kernel = kernel
-        self.search = search
-        self.prune = prune
-        self.recognition = recognition
-        self.appearance = appearance
+        self.edges, self.kernel, self.search = edges, kernel, search
+        self.prune, self.recognition, self.appearance = prune, recognition, appearance
         self.max_modes = max_modes
         self.min_score = min_score
         self.n_jobs = n_jobs
@@ -274,7 +271,8 @@ class PoseEstimator(GroupedParams):
         feats, img = self._read(image, channels)
         setup = self.setup()
         maps = search_maps(feats, img.shape, model, setup)
-        return probe(model, maps, setup, progress=progress), feats
+        probes = rerank_by_coverage(probe(model, maps, setup, progress=progress), model, maps, setup)
+        return probes, feats
 
     def estimate(self, image: ImageLike, *, channels: str = "rgb",
                  camera: Camera | None = None) -> PoseEstimate:
@@ -334,7 +332,7 @@ class PoseEstimator(GroupedParams):
         shape = (int(img.shape[0]), int(img.shape[1]))
         setup = self.setup()
         maps = search_maps(feats, shape, model, setup)
-        probes = probe(model, maps, setup)
+        probes = rerank_by_coverage(probe(model, maps, setup), model, maps, setup)
         verified_box = None
         if self.appearance is not None and self.appearance.candidates and probes.score.any():
             located = verify(probes, img, feats, maps, model, self._appearance_model(),
@@ -360,8 +358,9 @@ class PoseEstimator(GroupedParams):
         if self.appearance is not None and hyps:
             hyps[0] = appearance_refine(hyps[0], img, model, self._appearance_model(),
                                         self.appearance, verified_box=verified_box)
-        kept = with_probabilities([h for h in hyps if h.score > self.min_score], probes)
-        kept = tuple(place_all(kept, camera, reference_size_px=model.reference_size,
+        kept = tuple(place_all(with_probabilities([h for h in hyps if h.score > self.min_score],
+                                                  probes),
+                               camera, reference_size_px=model.reference_size,
                                object_height_m=self.object_height_m_))
         return PoseEstimate(found=bool(kept), best=kept[0] if kept else None, modes=kept,
                             n_test_features=len(feats), seconds=time.perf_counter() - start,

@@ -133,9 +133,12 @@ _ABLATION = (
 
 _APPEARANCE = "HOG verification of 80 candidates, box regression, nearest-view viewpoint"
 _EPFL_ROWS = (
-    Row(name="paper: weights + fitting", params={"appearance": None, "recognition": None},
+    Row(name="paper: weights + fitting",
+        params={"appearance": None, "recognition": None, "search__coverage": True},
         note="edges alone, the paper's row of Fig. 7: the category preset's search without "
-             "its appearance stages and without the instance model"),
+             "its appearance stages and without the instance model, its best probes "
+             "re-ranked by coverage (SearchOptions.coverage) instead of by the HOG "
+             "verification"),
     Row(name="category preset: + HOG verification + box regression + nearest view", params={},
         note=f"beyond the paper: {_APPEARANCE}"),
     Row(name="category preset + moderate pruning", params={"prune": "moderate"}),

@@ -92,6 +92,10 @@ class SearchOptions(Options):
         At most about this many training features per viewpoint take part in
         the grid search (an even subset), for pooled category models; the
         refinements read all of them.
+    coverage : bool, default False
+        Re-rank the best probes by the share of the test edges in their box
+        that they explain (:mod:`posevote.inference.coverage`; beyond the
+        paper).
     """
 
     viewpoint_step_deg: float | None = None
@@ -104,6 +108,7 @@ class SearchOptions(Options):
     chance_correction: bool = False
     density_cap: float | None = None
     max_search_features: int | None = None
+    coverage: bool = False
 
     def __post_init__(self) -> None:
         self._number("viewpoint_step_deg", low=0.1, high=180.0, optional=True)
@@ -117,7 +122,7 @@ class SearchOptions(Options):
             self._fail("scale_range", "(low, high) with 0.05 <= low <= high <= 20",
                        self.scale_range)
         self._number("scale_steps", low=1, high=MAX_GRID_STEPS, integer=True)
-        for name in ("object_kernel", "chance_correction"):
+        for name in ("object_kernel", "chance_correction", "coverage"):
             self._flag(name)
         self._number("density_cap", low=0.0, high=1e6, low_open=True, optional=True)
         self._number("max_search_features", low=1, high=10_000_000, integer=True,

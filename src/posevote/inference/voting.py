@@ -343,24 +343,34 @@ def gather_score(density, train_xy, train_theta, train_w, alpha, scale, tu, tv
     return total
 
 
-def gather_score_reference(density, train_xy, train_theta, train_w, alpha, scale, tu, tv):
-    """Pure-numpy :func:`gather_score` (for tests)."""
+def density_at(density: NDArray[np.float32], xy: NDArray[np.float64], theta: NDArray[np.float64]
+               ) -> NDArray[np.float64]:
+    """phi at each point and orientation, interpolated as :func:`gather_score` reads it.
+
+    Bilinear in position, linear in orientation; 0 outside the maps.
+    """
     from scipy.ndimage import map_coordinates
 
-    n_bins = density.shape[0]
-    h, w = density.shape[1:]
-    ca, sa = np.cos(alpha), np.sin(alpha)
-    x = scale * (ca * train_xy[:, 0] - sa * train_xy[:, 1]) + tu
-    y = scale * (sa * train_xy[:, 0] + ca * train_xy[:, 1]) + tv
-    th = np.mod(train_theta + alpha, np.pi)
-    f = th / (np.pi / n_bins) - 0.5
+    n_bins, h, w = density.shape
+    f = np.mod(theta, np.pi) / (np.pi / n_bins) - 0.5
     b0 = np.floor(f).astype(int) % n_bins
     b1 = (b0 + 1) % n_bins
     ft = f - np.floor(f)
-    inside = (x >= 0) & (y >= 0) & (x < w - 1) & (y < h - 1) & (train_w > 0)
-    v0 = map_coordinates(density.astype(np.float64), [b0, y, x], order=1, mode="constant")
-    v1 = map_coordinates(density.astype(np.float64), [b1, y, x], order=1, mode="constant")
-    return float(np.sum(np.where(inside, train_w * ((1 - ft) * v0 + ft * v1), 0.0)))
+    x, y = xy[:, 0], xy[:, 1]
+    inside = (x >= 0) & (y >= 0) & (x < w - 1) & (y < h - 1)
+    d = density.astype(np.float64)
+    v0 = map_coordinates(d, [b0, y, x], order=1, mode="constant")
+    v1 = map_coordinates(d, [b1, y, x], order=1, mode="constant")
+    return np.where(inside, (1 - ft) * v0 + ft * v1, 0.0)
+
+
+def gather_score_reference(density, train_xy, train_theta, train_w, alpha, scale, tu, tv):
+    """Pure-numpy :func:`gather_score` (for tests)."""
+    ca, sa = np.cos(alpha), np.sin(alpha)
+    x = scale * (ca * train_xy[:, 0] - sa * train_xy[:, 1]) + tu
+    y = scale * (sa * train_xy[:, 0] + ca * train_xy[:, 1]) + tv
+    values = density_at(density, np.stack([x, y], axis=1), train_theta + alpha)
+    return float(np.sum(np.where(train_w > 0, train_w * values, 0.0)))
 
 
 # --- driver ---------------------------------------------------------------------
