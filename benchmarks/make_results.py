@@ -56,12 +56,13 @@ objects: [`results/rejection_threshold.md`](results/rejection_threshold.md)
 [`results/rejection_threshold_clutter.md`](results/rejection_threshold_clutter.md)
 (pasted on clutter, the `cluttered` preset).
 
-The whole viewing sphere (issue 28, a first measurement): pybullet's r2d2
-rendered at elevations -30 to 60°, tested pasted on clutter, with rotation
-and translation errors in the camera frame:
-[`results/rendered_sphere.md`](results/rendered_sphere.md)
-(`python benchmarks/rendered_sphere.py --markdown docs/results/rendered_sphere.md`); the
-same views as rendered, on black:
+The whole viewing sphere (issue 28): pybullet's r2d2 rendered at
+elevations -30 to 60°, tested pasted on clutter, with rotation and
+translation errors in the camera frame, `posevote evaluate rendered-sphere
+--jobs 2` ([`results/rendered-sphere/report.md`](results/rendered-sphere/report.md),
+the errors plotted in
+[`results/rendered-sphere/rotation_errors.png`](results/rendered-sphere/rotation_errors.png));
+variants by `benchmarks/rendered_sphere.py`: the same views as rendered, on black:
 [`results/rendered_sphere_clean.md`](results/rendered_sphere_clean.md) (`--clean`); one
 elevation in the same clutter:
 [`results/rendered_sphere_turntable.md`](results/rendered_sphere_turntable.md)

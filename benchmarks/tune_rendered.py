@@ -7,7 +7,7 @@ training view. What the continuous refinement does at those offsets (in
 particular whether it pulls estimates toward the probed training views) is
 measured here instead, on meshes that ship inside the ``pybullet`` wheel,
 none of them a COIL object: each is rendered on black at 5-degree steps
-(``posevote.demo.render_turntable``, 128 x 128 pixels, camera elevation 20
+(``posevote.evaluation.rendering.render_turntable``, 128 x 128 pixels, camera elevation 20
 degrees), an instance model is trained on 0, 20, ..., 340 degrees and the
 other 54 views are estimated, exactly the COIL instance protocol.
 
@@ -58,7 +58,7 @@ from _settings import parse_settings  # noqa: E402
 
 from posevote import PoseEstimator  # noqa: E402
 from posevote._io import atomic_write_text  # noqa: E402
-from posevote.demo import render_turntable  # noqa: E402
+from posevote.evaluation.rendering import render_turntable  # noqa: E402
 from posevote.evaluation.synthetic import paste_on_clutter  # noqa: E402
 from posevote.geometry import angle_difference  # noqa: E402
 

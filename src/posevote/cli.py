@@ -494,9 +494,10 @@ def weights(model: Path, output: Path, views: int) -> None:
 
 @cli.command()
 @click.argument("protocol", type=click.Choice(["coil-category", "coil-loio", "epfl-single",
-                                               "epfl-10-10", "epfl-cv"]))
-@click.option("--data", required=True, type=click.Path(path_type=Path),
-              help="Data folder: ../shared/data, or the dataset's own folder.")
+                                               "epfl-10-10", "epfl-cv", "rendered-sphere"]))
+@click.option("--data", type=click.Path(path_type=Path), default=None,
+              help="Data folder: ../shared/data, or the dataset's own folder (not for "
+                   "rendered-sphere, which renders its own).")
 @click.option("--out", "out", type=click.Path(path_type=Path), default=None,
               help="Results folder (default: results/PROTOCOL). Rerun with the same folder "
                    "to resume.")
@@ -510,14 +511,27 @@ def weights(model: Path, output: Path, views: int) -> None:
 @click.option("--scheduler", default=None, metavar="tcp://HOST:PORT",
               help="Estimate the test images on this Dask cluster instead of --jobs "
                    "(pip install 'posevote[dask]').")
-def evaluate(protocol: str, data: Path, out: Path | None, jobs: int, every: int,
-             rows: str | None, scheduler: str | None) -> None:
-    """Run an evaluation PROTOCOL of the paper on real data and write its report."""
+@click.option("--images", type=click.IntRange(1, 10_000), default=None,
+              help="rendered-sphere only: test images [default: 40].")
+def evaluate(protocol: str, data: Path | None, out: Path | None, jobs: int, every: int,
+             rows: str | None, scheduler: str | None, images: int | None) -> None:
+    """Run an evaluation PROTOCOL (the paper's, on real data; or the rendered sphere)."""
     from posevote.evaluation.protocols import load_protocol
     from posevote.evaluation.report import markdown_table
     from posevote.evaluation.runner import run_protocol
 
     out = _output_folder(out if out is not None else Path("results") / protocol, "--out")
+    if protocol == "rendered-sphere":
+        for name, given in (("--data", data is not None), ("--every", every != 1),
+                            ("--rows", rows is not None)):
+            if given:
+                raise click.BadParameter("not used by rendered-sphere", param_hint=name)
+        _evaluate_sphere(out, jobs=jobs, scheduler=scheduler, images=images or 40)
+        return
+    if data is None:
+        raise click.BadParameter(f"{protocol} needs the data folder", param_hint="--data")
+    if images is not None:
+        raise click.BadParameter("only for rendered-sphere", param_hint="--images")
     try:
         proto = load_protocol(protocol, data)
         row_list = None if rows is None else [r.strip() for r in rows.split(",") if r.strip()]
@@ -545,6 +559,30 @@ def evaluate(protocol: str, data: Path, out: Path | None, jobs: int, every: int,
         click.echo("Published numbers to compare with:\n")
         click.echo(proto.published)
     click.echo(f"report, summary.json, results.csv and plots in {out}/")
+
+
+def _evaluate_sphere(out: Path, *, jobs: int, scheduler: str | None, images: int) -> None:
+    from posevote.evaluation.sphere import SphereSetup, report_text, run_sphere
+
+    setup = SphereSetup(n_images=images)
+    bar = None
+
+    def progress(done: int, total: int) -> None:
+        nonlocal bar
+        if bar is None:
+            bar = _progress(total, "rendered-sphere")
+        bar.update(done - bar.n)
+
+    try:
+        summary = run_sphere(setup, out, jobs=jobs, scheduler=scheduler, progress=progress,
+                             log=lambda m: click.echo(m, err=True))
+    except BAD_INPUT as exc:
+        raise _input_error(exc) from None
+    finally:
+        if bar is not None:
+            bar.close()
+    click.echo(report_text(setup, summary, summary["n_training_views"]))
+    click.echo(f"report, summary.json, records.jsonl and rotation_errors.png in {out}/")
 
 
 @cli.command()

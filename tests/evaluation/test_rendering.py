@@ -1,0 +1,28 @@
+import numpy as np
+import pytest
+
+from posevote.evaluation.rendering import RENDER_FOV_DEG, render_focal, render_turntable
+
+pytest.importorskip("pybullet")
+
+
+def test_render_turntable_frames_any_mesh():
+    views = render_turntable(np.radians([0.0, 90.0, 200.0]), size=64, mesh="racecar/racecar.urdf",
+                             base_euler=(0.0, 0.0, 0.0), distance=None)
+    for view in views:
+        assert view.mask.any()
+        x, y, w, h = view.box
+        assert x > 0 and y > 0 and x + w < 64 and y + h < 64  # whole object in view
+        assert abs(x + w / 2 - 32) < 8  # turns about its own centre
+    assert not np.array_equal(views[0].mask, views[1].mask)
+
+
+def test_render_turntable_says_when_the_object_is_out_of_view():
+    with pytest.raises(ValueError, match="duck_vhacd.urdf: the object is not in view"):
+        render_turntable(np.radians([0.0]), size=32, target=(5.0, 5.0, 5.0))
+
+
+def test_render_focal_is_the_field_of_view_at_the_image_size():
+    f = render_focal(128)
+    assert 2 * np.degrees(np.arctan(64 / f)) == pytest.approx(RENDER_FOV_DEG)
+    assert render_focal(256) == pytest.approx(2 * f)

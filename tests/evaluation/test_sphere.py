@@ -1,0 +1,72 @@
+import functools
+import json
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from posevote.cli import cli
+from posevote.evaluation import sphere
+from posevote.evaluation.sphere import SphereSetup, geodesic_deg, run_sphere, summarize
+from posevote.geometry import rotation_from_pose
+
+pytest.importorskip("pybullet")
+
+# Two training elevations, views on black: the protocol end to end in seconds.
+_SMALL = {"elevations_deg": (0.0, 30.0), "clean": True}
+
+
+def test_geodesic_error_is_the_angle_between_rotations():
+    a = rotation_from_pose(0.3, 0.2, 0.1)
+    assert geodesic_deg(a, a) == pytest.approx(0.0, abs=1e-5)
+    b = rotation_from_pose(0.3, 0.2, 0.1 + np.radians(40))
+    assert geodesic_deg(a, b) == pytest.approx(40.0, abs=1e-6)
+
+
+def test_setup_refuses_what_it_cannot_run():
+    for bad in ({"mesh": "teapot.urdf"}, {"n_images": 0}, {"elevations_deg": (float("nan"),)},
+                {"elevations_deg": ()}, {"seed": -1}):
+        with pytest.raises(ValueError, match=next(iter(bad)).split("_")[0]):
+            SphereSetup(**bad)
+
+
+def test_run_writes_the_report_and_is_reproducible(tmp_path):
+    setup = SphereSetup(n_images=2, **_SMALL)
+    seen = []
+    summary = run_sphere(setup, tmp_path / "a", progress=lambda d, t: seen.append((d, t)))
+    assert seen[-1] == (2, 2) and summary["n"] == 2 and summary["n_training_views"] == 36
+    for name in ("model.npz", "records.jsonl", "summary.json", "report.md",
+                 "rotation_errors.png"):
+        assert (tmp_path / "a" / name).stat().st_size > 0
+    records = [json.loads(line) for line in
+               (tmp_path / "a" / "records.jsonl").read_text().splitlines()]
+    assert [r["seed"] for r in records] == setup.seeds()
+    assert all(0 <= r["rotation_deg"] <= 180 and r["translation_pct"] >= 0 for r in records)
+    assert "rotation median" in (tmp_path / "a" / "report.md").read_text()
+    run_sphere(setup, tmp_path / "b")
+    again = [json.loads(line) for line in
+             (tmp_path / "b" / "records.jsonl").read_text().splitlines()]
+    drop = ("seconds",)
+    assert [{k: v for k, v in r.items() if k not in drop} for r in records] == \
+        [{k: v for k, v in r.items() if k not in drop} for r in again]
+
+
+def test_summary_counts_a_missed_image_as_180_degrees_and_no_translation():
+    recs = [{"rotation_deg": 5.0, "translation_pct": 1.0, "detected": True, "seconds": 1.0},
+            {"rotation_deg": 180.0, "translation_pct": None, "detected": False, "seconds": 3.0}]
+    s = summarize(recs)
+    assert s["rotation_under_10_pct"] == 50.0 and s["translation_under_2_pct"] == 50.0
+    assert s["rotation_mean_deg"] == pytest.approx(92.5) and s["detected_pct"] == 50.0
+
+
+def test_cli_evaluates_the_rendered_sphere(tmp_path, monkeypatch):
+    monkeypatch.setattr(sphere, "SphereSetup", functools.partial(SphereSetup, **_SMALL))
+    out = tmp_path / "sphere"
+    result = CliRunner().invoke(cli, ["evaluate", "rendered-sphere", "--images", "1", "--out",
+                                      str(out)])
+    assert result.exit_code == 0, result.output
+    assert "rotation median" in result.output and (out / "summary.json").exists()
+    result = CliRunner().invoke(cli, ["evaluate", "rendered-sphere", "--data", str(tmp_path)])
+    assert result.exit_code == 2 and "--data" in result.output
+    result = CliRunner().invoke(cli, ["evaluate", "epfl-cv", "--out", str(tmp_path / "e")])
+    assert result.exit_code == 2 and "needs the data folder" in result.output
