@@ -23,13 +23,16 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
 from _settings import parse_settings  # noqa: E402
 
-from posevote.demo import DEMO_PRESET, run_demo  # noqa: E402
+from posevote.demo import DEMO_MESH, DEMO_PRESET, run_demo  # noqa: E402
+from posevote.evaluation.rendering import MESHES  # noqa: E402
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--seeds", default="1,2", help="comma-separated seeds (not 0)")
     ap.add_argument("--n-test", type=int, default=24)
+    ap.add_argument("--mesh", default=DEMO_MESH, choices=sorted(MESHES),
+                    help="the rendered object")
     ap.add_argument("--setting", action="append", default=[],
                     help="space-separated settings on top of the demo's preset "
                          "(group.field=VALUE)")
@@ -43,7 +46,8 @@ def main(argv: list[str] | None = None) -> int:
         errors, within, t0 = [], [], time.perf_counter()
         for seed in seeds:
             with tempfile.TemporaryDirectory() as out:
-                summary = run_demo(out, n_test=args.n_test, seed=seed, overrides=params)
+                summary = run_demo(out, n_test=args.n_test, seed=seed, overrides=params,
+                                   mesh=args.mesh)
             errors.append(summary)
             within.append(summary["position_within_5px"])
         line = " | ".join(f"seed {s}: {e['median']:.1f} / {e['mean']:.1f} deg, "

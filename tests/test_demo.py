@@ -19,3 +19,12 @@ def test_demo_summary(tmp_path):
     assert summary["n"] == 2
     assert 0.0 <= summary["position_within_5px"] <= 100.0
     assert (tmp_path / "results.csv").read_text().count("\n") == 3
+
+
+def test_demo_refuses_an_unknown_mesh(tmp_path):
+    pytest.importorskip("pybullet")
+    from posevote.demo import run_demo
+
+    with pytest.raises(ValueError, match="mesh must be one of"):
+        run_demo(tmp_path / "out", n_test=1, mesh="teapot.urdf")
+    assert not (tmp_path / "out").exists()

@@ -16,24 +16,28 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from posevote.estimator import PoseEstimator
 from posevote.evaluation.metrics import summarize_errors
 from posevote.evaluation.plots import draw_overlay, write_png
-from posevote.evaluation.rendering import render_turntable
+from posevote.evaluation.rendering import MESHES, RenderedView, render_turntable
 from posevote.evaluation.synthetic import paste_on_clutter
 from posevote.geometry import angular_error
 
 #: The demo's preset: the cluttered search with the local refinement. Its
 #: values were chosen on the cluttered COIL benchmark and checked on seeds 1-3
 #: of the demo's own generator, never on seed 0, which the demo reports
-#: (``benchmarks/tune_demo.py``, docs/DEFAULTS.md).
+#: (``benchmarks/tune_demo.py``, docs/history/TUNING.md).
 DEMO_PRESET = "cluttered"
+#: The demo's object (a key of :data:`posevote.evaluation.rendering.MESHES`):
+#: compared with the other meshes on seeds 1-3 (docs/DEFAULTS.md, "The demo's object").
+DEMO_MESH = "duck_vhacd.urdf"
 
 
 def run_demo(out_dir: str | Path, *, n_test: int = 24, seed: int = 0,
              log: Callable[[str], None] = lambda s: None,
-             overrides: dict[str, Any] | None = None) -> dict:
+             overrides: dict[str, Any] | None = None, mesh: str = DEMO_MESH) -> dict:
     """Train on rendered views, estimate cluttered test images, write overlays.
 
     Parameters
@@ -49,6 +53,8 @@ def run_demo(out_dir: str | Path, *, n_test: int = 24, seed: int = 0,
     overrides : dict, optional
         :meth:`~posevote.estimator.PoseEstimator.set_params` overrides of the
         :data:`DEMO_PRESET` preset.
+    mesh : str, optional
+        The rendered object, a key of :data:`posevote.evaluation.rendering.MESHES`.
 
     Returns
     -------
@@ -59,14 +65,22 @@ def run_demo(out_dir: str | Path, *, n_test: int = 24, seed: int = 0,
 
     rng = np.random.default_rng(seed)
     out_dir = Path(out_dir)
-    train = render_turntable(np.radians(np.arange(0, 360, 20)))
-    log(f"rendered {len(train)} training views of pybullet's duck (one every 20 degrees)")
+    if mesh not in MESHES:
+        raise ValueError(f"mesh must be one of {sorted(MESHES)}, got {mesh!r}")
+
+    def render(azimuths: NDArray[np.float64]) -> list[RenderedView]:
+        # The duck keeps its fixed distance (the demo's history); the others are framed.
+        distance = 0.24 if mesh == "duck_vhacd.urdf" else None
+        return render_turntable(azimuths, mesh=mesh, base_euler=MESHES[mesh], distance=distance)
+
+    train = render(np.radians(np.arange(0, 360, 20)))
+    log(f"rendered {len(train)} training views of pybullet's {mesh} (one every 20 degrees)")
     estimator = PoseEstimator.from_preset(DEMO_PRESET, **(overrides or {}))
     estimator.fit([v.image for v in train], [v.azimuth for v in train],
                   boxes=[v.box for v in train], masks=[v.mask for v in train])
     log(f"trained: {estimator.model_.n_features} features")
     test_az = np.radians(rng.uniform(0.0, 360.0, n_test))
-    test = render_turntable(test_az)
+    test = render(test_az)
     rows = ["image,azimuth_true_deg,azimuth_est_deg,error_deg,position_error_px,score,seconds"]
     errors, pos_errors = [], []
     for i, view in enumerate(test):

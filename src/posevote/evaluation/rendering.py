@@ -13,6 +13,12 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+#: Meshes of pybullet_data and the rest orientation (roll, pitch, yaw) that
+#: stands each upright on the turntable.
+MESHES: dict[str, tuple[float, float, float]] = {
+    "r2d2.urdf": (0.0, 0.0, 0.0), "duck_vhacd.urdf": (np.pi / 2, 0.0, 0.0),
+    "teddy_vhacd.urdf": (np.pi / 2, 0.0, 0.0)}
+
 #: Vertical field of view of the renderer, degrees.
 RENDER_FOV_DEG = 40.0
 

@@ -43,7 +43,7 @@ from posevote._io import atomic_write_text
 from posevote._parallel import ordered_map
 from posevote.camera import Camera, object_height_from_distances
 from posevote.estimator import PoseEstimator
-from posevote.evaluation.rendering import RenderedView, render_focal, render_turntable
+from posevote.evaluation.rendering import MESHES, RenderedView, render_focal, render_turntable
 from posevote.evaluation.synthetic import PastedView, paste_on_clutter
 from posevote.geometry import box_centre, box_iou, rotation_from_pose
 
@@ -54,9 +54,6 @@ SIZE = 128
 CANVAS = (256, 256)
 #: Scales at which test views are pasted.
 SCALE_RANGE = (0.8, 1.25)
-#: Meshes of pybullet_data and the base orientation that stands each upright.
-MESHES: dict[str, tuple[float, float, float]] = {
-    "r2d2.urdf": (0.0, 0.0, 0.0), "duck_vhacd.urdf": (np.pi / 2, 0.0, 0.0)}
 #: The most test images one run may hold.
 MAX_IMAGES = 10_000
 
