@@ -102,3 +102,12 @@ def test_box_centre_is_the_middle_pixel():
 
     assert box_centre((0, 0, 1, 1)) == (0.0, 0.0)
     assert box_centre(np.array([10.0, 20.0, 5.0, 4.0])) == (12.0, 21.5)
+
+
+def test_rotation_angle_is_the_geodesic_between_rotations():
+    from posevote.geometry import rotation_angle, rotation_from_pose
+
+    a = rotation_from_pose(0.3, 0.2, 0.1)
+    assert rotation_angle(a, a) == pytest.approx(0.0, abs=1e-6)
+    assert rotation_angle(a, rotation_from_pose(0.3, 0.2, 0.8)) == pytest.approx(0.7, abs=1e-9)
+    assert rotation_angle(a, rotation_from_pose(0.3 + np.pi, 0.2, 0.1)) > 2.0

@@ -206,6 +206,12 @@ def rotate_points(points: ArrayLike, angle: float) -> NDArray[np.float64]:
     return np.stack([c * p[..., 0] - s * p[..., 1], s * p[..., 0] + c * p[..., 1]], axis=-1)
 
 
+def rotation_angle(a: ArrayLike, b: ArrayLike) -> float:
+    """The angle of the rotation that takes rotation matrix ``b`` to ``a`` (geodesic), radians."""
+    r = np.asarray(a, dtype=np.float64) @ np.asarray(b, dtype=np.float64).T
+    return float(np.arccos(np.clip((np.trace(r) - 1.0) / 2.0, -1.0, 1.0)))
+
+
 def box_centre(box: ArrayLike) -> tuple[float, float]:
     """Centre ``(u, v)`` of the pixels of an ``(x, y, w, h)`` box (pixel centres at integers)."""
     x, y, w, h = (float(b) for b in np.asarray(box, dtype=np.float64))

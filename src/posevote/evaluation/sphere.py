@@ -17,7 +17,7 @@ estimated with the ``cluttered`` preset and the renderer's camera. With
 The true rotation is the rendered viewpoint with the pasted in-plane angle;
 the true translation is the pasted position's ray at the rendered distance
 divided by the pasted scale. Reported: the geodesic rotation error (median,
-mean, share under 10 and 30 degrees), the translation error as a share of
+mean, share under 10 and 30 degrees, flip rate: over 135 degrees), the translation error as a share of
 the true depth, the detection rate (box IoU >= 0.5) and the seconds per
 image, in ``report.md`` and ``summary.json``, one record per test image in
 ``records.jsonl``, and the rotation errors plotted against the test
@@ -43,9 +43,10 @@ from posevote._io import atomic_write_text
 from posevote._parallel import ordered_map
 from posevote.camera import Camera, object_height_from_distances
 from posevote.estimator import PoseEstimator
+from posevote.evaluation.metrics import FLIP_DEG, summarize_errors
 from posevote.evaluation.rendering import MESHES, RenderedView, render_focal, render_turntable
 from posevote.evaluation.synthetic import PastedView, paste_on_clutter
-from posevote.geometry import box_centre, box_iou, rotation_from_pose
+from posevote.geometry import box_centre, box_iou, rotation_angle, rotation_from_pose
 
 ELEVATIONS_DEG = (-30.0, -15.0, 0.0, 15.0, 30.0, 45.0, 60.0)
 AZIMUTH_STEP_DEG = 20
@@ -131,11 +132,6 @@ def train(setup: SphereSetup) -> PoseEstimator:
                    masks=[v.mask for v in views], object_height_m=height)
 
 
-def geodesic_deg(a: NDArray[np.float64], b: NDArray[np.float64]) -> float:
-    """The angle of the rotation between two rotation matrices, degrees."""
-    return float(np.degrees(np.arccos(np.clip((np.trace(a @ b.T) - 1.0) / 2.0, -1.0, 1.0))))
-
-
 _ESTIMATORS: dict[str, PoseEstimator] = {}
 
 
@@ -173,8 +169,8 @@ def estimate_record(model_path: str, setup: SphereSetup, seed: int) -> dict[str,
                            "translation_pct": None, "detected": False}
     best = result.best
     if best is not None and best.R_cam_obj is not None and best.t_cam_obj is not None:
-        rec["rotation_deg"] = geodesic_deg(np.array(best.R_cam_obj),
-                                           rotation_from_pose(az, np.radians(el), pasted.inplane))
+        rec["rotation_deg"] = float(np.degrees(rotation_angle(
+            best.R_cam_obj, rotation_from_pose(az, np.radians(el), pasted.inplane))))
         rec["translation_pct"] = float(100 * np.linalg.norm(np.array(best.t_cam_obj) - truth_t)
                                        / depth)
         rec["detected"] = bool(box_iou(best.box, pasted.box) >= 0.5)
@@ -182,14 +178,19 @@ def estimate_record(model_path: str, setup: SphereSetup, seed: int) -> dict[str,
 
 
 def summarize(records: Sequence[dict[str, Any]]) -> dict[str, Any]:
-    """The protocol's figures over the records (a missed image counts 180 degrees, no translation)."""
+    """The protocol's figures over the records (a missed image counts 180 degrees, no translation).
+
+    A flip is a rotation error over ``FLIP_DEG`` (the object taken for its half-turned self).
+    """
     rot = np.array([r["rotation_deg"] for r in records], dtype=float)
     tra = np.array([np.inf if r["translation_pct"] is None else r["translation_pct"]
                     for r in records])
+    errors = summarize_errors(rot)
     return {"n": len(records),
-            "rotation_median_deg": float(np.median(rot)), "rotation_mean_deg": float(rot.mean()),
+            "rotation_median_deg": errors["median"], "rotation_mean_deg": errors["mean"],
             "rotation_under_10_pct": float(100 * np.mean(rot < 10)),
             "rotation_under_30_pct": float(100 * np.mean(rot < 30)),
+            "flip_rate_pct": errors["flip_rate"],
             "translation_median_pct": float(np.median(tra)),
             "translation_under_2_pct": float(100 * np.mean(tra < 2)),
             "detected_pct": float(100 * np.mean([r["detected"] for r in records])),
@@ -205,11 +206,12 @@ def report_text(setup: SphereSetup, summary: dict[str, Any], n_views: int) -> st
             f"{', '.join(f'{e:g}' for e in setup.elevations_deg)} deg); {summary['n']} test views "
             f"at random azimuths and elevations, {where}; preset `{setup.preset}`, overrides "
             f"{dict(setup.params) or 'none'}; seed {setup.seed}.\n\n"
-            "| rotation median ° | rotation mean ° | % < 10° | % < 30° | translation median "
-            "(% of depth) | % translation < 2% | detected % | s / image |\n"
-            "|---|---|---|---|---|---|---|---|\n"
+            f"| rotation median ° | rotation mean ° | % < 10° | % < 30° | flips % (> {FLIP_DEG:g}°) "
+            "| translation median (% of depth) | % translation < 2% | detected % | s / image |\n"
+            "|---|---|---|---|---|---|---|---|---|\n"
             f"| {summary['rotation_median_deg']:.2f} | {summary['rotation_mean_deg']:.2f} | "
             f"{summary['rotation_under_10_pct']:.1f} | {summary['rotation_under_30_pct']:.1f} | "
+            f"{summary['flip_rate_pct']:.1f} | "
             f"{summary['translation_median_pct']:.2f} | {summary['translation_under_2_pct']:.1f} | "
             f"{summary['detected_pct']:.1f} | {summary['seconds_median']:.2f} |\n")
 
@@ -225,12 +227,14 @@ def plot_rotation_errors(records: Sequence[dict[str, Any]], path: Path, *, title
     det = np.array([r["detected"] for r in records], dtype=bool)
     left.scatter(el[det], rot[det], s=14, label="detected")
     left.scatter(el[~det], rot[~det], s=14, marker="x", label="not detected")
+    left.axhline(FLIP_DEG, color="grey", lw=0.8, ls="--", label=f"flip (> {FLIP_DEG:g} deg)")
     left.set(xlabel="test elevation (deg)", ylabel="rotation error (deg)", ylim=(0, 185))
     left.legend(fontsize=8)
     xs = np.sort(rot)
     right.plot(xs, 100 * np.arange(1, len(xs) + 1) / len(xs))
     for x in (10, 30):
         right.axvline(x, color="grey", lw=0.8, ls=":")
+    right.axvline(FLIP_DEG, color="grey", lw=0.8, ls="--")
     right.set(xlabel="rotation error (deg)", ylabel="% of test images within", xlim=(0, 180),
               ylim=(0, 100))
     fig.suptitle(title)
