@@ -20,6 +20,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from posevote.features.edges import EdgeFeatures
+from posevote.geometry import rotate_points
 from posevote.inference.search import ProbeSet, SearchSetup, viewpoint_features
 from posevote.inference.voting import TestMaps, density_at, prepare_test
 from posevote.model.density import PoseModel
@@ -128,8 +129,7 @@ def rerank_by_coverage(probes: ProbeSet, model: PoseModel, maps: TestMaps | Sequ
         assert isinstance(test, TestMaps)
         centre = probes.translation[v, a, k] * (size / s)
         alpha = float(probes.inplane[a])
-        c, si = np.cos(alpha), np.sin(alpha)
-        placed = size * (xy @ np.array([[c, si], [-si, c]])) + centre
+        placed = size * rotate_points(xy, alpha) + centre
         found[n] = coverage(placed, np.mod(theta + alpha, np.pi), test, size * box, centre,
                             edge_spacing=setup.edge_spacing * size)
     # Floored above 0 so that a probe explaining nothing keeps its rank among the rest.
