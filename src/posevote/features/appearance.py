@@ -1,9 +1,12 @@
 """Appearance descriptors of boxes: HOG of the crop, resized to a fixed window.
 
 Beyond the paper. Unlike the edge votes, a histogram-of-oriented-gradients
-descriptor (:func:`skimage.feature.hog`) of a box also sees where edges are
-*missing* and the shading inside it, which tells a car's front from its
-back. The model stores one per training view (:mod:`posevote.model.appearance`);
+descriptor of a box also sees where edges are *missing* and the shading
+inside it, which tells a car's front from its back. :func:`hog` computes
+what :func:`skimage.feature.hog` does with this module's settings (9
+orientations, 8-pixel cells, 2 x 2 blocks, L2-Hys) as one compiled kernel,
+ten times faster; :func:`hog_reference` calls scikit-image, for the tests.
+The model stores one per training view (:mod:`posevote.model.appearance`);
 the verification and the appearance refinement compare test boxes with them.
 """
 
@@ -12,12 +15,16 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import cv2
+import numba
 import numpy as np
 from numpy.typing import NDArray
 
 #: Height of the descriptor window, pixels; its width follows the training boxes' shape.
 WINDOW_HEIGHT = 48
 _CELL = 8
+_ORIENTATIONS = 9
+_HYS_CLIP = 0.2  # L2-Hys: the block's normalised values are clipped here, then renormalised
+_EPS = 1e-5
 
 
 def window_shape(box_sizes: NDArray[np.float64]) -> tuple[int, int]:
@@ -60,15 +67,79 @@ def box_descriptor(image: NDArray[np.floating], box: Sequence[float],
     region = crop_box(image, box)
     if region.shape[0] < 8 or region.shape[1] < 8:
         return None
-    from skimage.feature import hog
-
     crop = cv2.resize(np.ascontiguousarray(region, dtype=np.float32),
                       (window[1], window[0]), interpolation=cv2.INTER_AREA)
-    return hog(crop, orientations=9, pixels_per_cell=(_CELL, _CELL), cells_per_block=(2, 2),
-               feature_vector=True).astype(np.float32)
+    return hog(crop)
+
+
+@numba.njit(cache=True, nogil=True)
+def _hog_kernel(crop, cell, orientations, clip, eps, out):  # pragma: no cover - compiled
+    """Cell histograms of gradient orientation, then L2-Hys over 2 x 2 blocks, into ``out``.
+
+    As scikit-image: central differences (0 on the border rows and
+    columns), unsigned orientation in degrees, each pixel's magnitude into
+    its one bin (lower edge inclusive), the cell's mean.
+    """
+    h, w = crop.shape
+    cy, cx = h // cell, w // cell
+    hist = np.zeros((cy, cx, orientations))
+    width = np.float32(180.0 / orientations)
+    for r in range(cy * cell):
+        for c in range(cx * cell):
+            gr = crop[r + 1, c] - crop[r - 1, c] if 0 < r < h - 1 else np.float32(0.0)
+            gc = crop[r, c + 1] - crop[r, c - 1] if 0 < c < w - 1 else np.float32(0.0)
+            o = np.float32(np.rad2deg(np.arctan2(gr, gc))) % np.float32(180.0)
+            b = min(int(o / width), orientations - 1)
+            # The division can round across a bin edge; the edges decide.
+            if o < width * b:
+                b -= 1
+            elif o >= width * (b + 1):
+                b += 1
+            if 0 <= b < orientations:
+                hist[r // cell, c // cell, b] += np.hypot(gc, gr)
+    hist /= cell * cell
+    k = 0
+    block = np.empty(4 * orientations)
+    for br in range(cy - 1):
+        for bc in range(cx - 1):
+            n = 0
+            for dr in range(2):
+                for dc in range(2):
+                    for b in range(orientations):
+                        block[n] = hist[br + dr, bc + dc, b]
+                        n += 1
+            total = 0.0
+            for i in range(n):
+                total += block[i] * block[i]
+            norm = np.sqrt(total + eps * eps)
+            total = 0.0
+            for i in range(n):
+                block[i] = min(block[i] / norm, clip)
+                total += block[i] * block[i]
+            norm = np.sqrt(total + eps * eps)
+            for i in range(n):
+                out[k] = block[i] / norm
+                k += 1
+
+
+def hog(crop: NDArray[np.floating]) -> NDArray[np.float32]:
+    """HOG descriptor of a grey crop (at least 16 x 16 pixels), as :func:`hog_reference`."""
+    crop = np.ascontiguousarray(crop, dtype=np.float32)
+    out = np.empty(descriptor_length(crop.shape[:2]), dtype=np.float64)
+    _hog_kernel(crop, _CELL, _ORIENTATIONS, _HYS_CLIP, _EPS, out)
+    return out.astype(np.float32)
+
+
+def hog_reference(crop: NDArray[np.floating]) -> NDArray[np.float32]:
+    """:func:`skimage.feature.hog` with the settings of :func:`hog` (for tests)."""
+    from skimage.feature import hog as skimage_hog
+
+    return skimage_hog(np.asarray(crop, dtype=np.float32), orientations=_ORIENTATIONS,
+                       pixels_per_cell=(_CELL, _CELL), cells_per_block=(2, 2),
+                       block_norm="L2-Hys", feature_vector=True).astype(np.float32)
 
 
 def descriptor_length(window: tuple[int, int]) -> int:
     """Length of a :func:`box_descriptor` for ``window``."""
     blocks_y, blocks_x = window[0] // _CELL - 1, window[1] // _CELL - 1
-    return blocks_y * blocks_x * 4 * 9
+    return blocks_y * blocks_x * 4 * _ORIENTATIONS
