@@ -13,6 +13,7 @@ the verification and the appearance refinement compare test boxes with them.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Any
 
 import cv2
 import numba
@@ -122,7 +123,7 @@ def _hog_kernel(crop, cell, orientations, clip, eps, out):  # pragma: no cover -
                 k += 1
 
 
-def hog(crop: NDArray[np.floating]) -> NDArray[np.float32]:
+def hog(crop: NDArray[Any]) -> NDArray[np.float32]:
     """HOG descriptor of a grey crop (at least 16 x 16 pixels), as :func:`hog_reference`."""
     crop = np.ascontiguousarray(crop, dtype=np.float32)
     out = np.empty(descriptor_length(crop.shape[:2]), dtype=np.float64)
