@@ -74,22 +74,19 @@ def box_descriptor(image: NDArray[np.floating], box: Sequence[float],
 
 
 @numba.njit(cache=True, nogil=True)
-def _hog_kernel(crop, cell, orientations, clip, eps, out):  # pragma: no cover - compiled
+def _hog_kernel(magnitude, orientation, cell, orientations, clip, eps, out
+                ):  # pragma: no cover - compiled
     """Cell histograms of gradient orientation, then L2-Hys over 2 x 2 blocks, into ``out``.
 
-    As scikit-image: central differences (0 on the border rows and
-    columns), unsigned orientation in degrees, each pixel's magnitude into
-    its one bin (lower edge inclusive), the cell's mean.
+    As scikit-image: each pixel's magnitude into its one orientation bin
+    (lower edge inclusive), the cell's mean.
     """
-    h, w = crop.shape
-    cy, cx = h // cell, w // cell
+    cy, cx = magnitude.shape[0] // cell, magnitude.shape[1] // cell
     hist = np.zeros((cy, cx, orientations))
-    width = np.float32(180.0 / orientations)
+    width = 180.0 / orientations
     for r in range(cy * cell):
         for c in range(cx * cell):
-            gr = crop[r + 1, c] - crop[r - 1, c] if 0 < r < h - 1 else np.float32(0.0)
-            gc = crop[r, c + 1] - crop[r, c - 1] if 0 < c < w - 1 else np.float32(0.0)
-            o = np.float32(np.rad2deg(np.arctan2(gr, gc))) % np.float32(180.0)
+            o = orientation[r, c]
             b = min(int(o / width), orientations - 1)
             # The division can round across a bin edge; the edges decide.
             if o < width * b:
@@ -97,7 +94,7 @@ def _hog_kernel(crop, cell, orientations, clip, eps, out):  # pragma: no cover -
             elif o >= width * (b + 1):
                 b += 1
             if 0 <= b < orientations:
-                hist[r // cell, c // cell, b] += np.hypot(gc, gr)
+                hist[r // cell, c // cell, b] += magnitude[r, c]
     hist /= cell * cell
     k = 0
     block = np.empty(4 * orientations)
@@ -125,9 +122,18 @@ def _hog_kernel(crop, cell, orientations, clip, eps, out):  # pragma: no cover -
 
 def hog(crop: NDArray[Any]) -> NDArray[np.float32]:
     """HOG descriptor of a grey crop (at least 16 x 16 pixels), as :func:`hog_reference`."""
-    crop = np.ascontiguousarray(crop, dtype=np.float32)
+    crop = np.asarray(crop, dtype=np.float32)
+    # As scikit-image: central differences in single precision (0 on the
+    # border), magnitude and orientation in double by numpy, so that a pixel
+    # on a bin edge falls in the same bin.
+    g_row, g_col = np.zeros_like(crop), np.zeros_like(crop)
+    g_row[1:-1] = crop[2:] - crop[:-2]
+    g_col[:, 1:-1] = crop[:, 2:] - crop[:, :-2]
+    g_row64, g_col64 = g_row.astype(np.float64), g_col.astype(np.float64)
+    magnitude = np.hypot(g_col64, g_row64)
+    orientation = np.rad2deg(np.arctan2(g_row64, g_col64)) % 180.0
     out = np.empty(descriptor_length(crop.shape[:2]), dtype=np.float64)
-    _hog_kernel(crop, _CELL, _ORIENTATIONS, _HYS_CLIP, _EPS, out)
+    _hog_kernel(magnitude, orientation, _CELL, _ORIENTATIONS, _HYS_CLIP, _EPS, out)
     return out.astype(np.float32)
 
 

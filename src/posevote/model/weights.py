@@ -19,6 +19,7 @@ instances, not quadratically).
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 from numpy.typing import NDArray
 
@@ -90,21 +91,26 @@ def _instance_weights(xy: NDArray[np.float64], theta: NDArray[np.float64],
     if len(pairs) > max_pairs:
         raise ValueError(f"{len(pairs)} feature pairs to weigh (max_pairs={max_pairs}); "
                          "lower the feature budget (max_train_features)")
-    # Both directions of every pair, plus each feature with itself.
+    if m * k_views <= dense_cells:
+        # psi~_k(x_i) for every feature and view at once: the strongest
+        # response among the features of view k (0 where none is near).
+        psi_all = np.zeros((m, k_views))
+        _strongest_responses(np.ascontiguousarray(xy, dtype=np.float64),
+                             np.ascontiguousarray(theta, dtype=np.float64),
+                             np.ascontiguousarray(view, dtype=np.int64),
+                             np.ascontiguousarray(pairs, dtype=np.int64), float(position_sigma),
+                             float(orientation_kappa), psi_all)
+        k1_views = viewpoint_kernel(directions[:, None, :], directions[None, :, :],
+                                    viewpoint_kappa)
+        ambiguity = np.einsum("ik,ik->i", psi_all, 1.0 - k1_views[view]) / k_views
+        return np.clip(1.0 - ambiguity, 0.0, 1.0)
+    # The pure-numpy path (the reference of the dense one in the tests):
+    # both directions of every pair, plus each feature with itself.
     i = np.concatenate([pairs[:, 0], pairs[:, 1], np.arange(m)])
     j = np.concatenate([pairs[:, 1], pairs[:, 0], np.arange(m)])
     d2 = np.sum((xy[i] - xy[j]) ** 2, axis=1)
     response = position_kernel(d2, position_sigma) * orientation_kernel(
         theta[i] - theta[j], orientation_kappa)
-    if m * k_views <= dense_cells:
-        # psi~_k(x_i) for every feature and view at once: the strongest
-        # response among the features of view k (0 where none is near).
-        psi_all = np.zeros((m, k_views))
-        np.maximum.at(psi_all, (i, view[j]), response)
-        k1_views = viewpoint_kernel(directions[:, None, :], directions[None, :, :],
-                                    viewpoint_kappa)
-        ambiguity = np.einsum("ik,ik->i", psi_all, 1.0 - k1_views[view]) / k_views
-        return np.clip(1.0 - ambiguity, 0.0, 1.0)
     # psi~_k(x_i): strongest response among the features of view k.
     key = i * k_views + view[j]
     order = np.lexsort((-response, key))
@@ -115,3 +121,25 @@ def _instance_weights(xy: NDArray[np.float64], theta: NDArray[np.float64],
     k1 = viewpoint_kernel(directions[view[i]], directions[view_k], viewpoint_kappa)
     ambiguity = np.bincount(i, weights=psi * (1.0 - k1), minlength=m) / k_views
     return np.clip(1.0 - ambiguity, 0.0, 1.0)
+
+
+@numba.njit(cache=True, nogil=True)
+def _strongest_responses(xy, theta, view, pairs, sigma, kappa, psi):  # pragma: no cover
+    """``psi[i, k]``: the strongest kernel response at feature i of any feature of view k.
+
+    ``pairs`` are the feature pairs within reach (each once); a feature's
+    response to itself is 1.
+    """
+    for a in range(xy.shape[0]):
+        psi[a, view[a]] = 1.0
+    for p in range(pairs.shape[0]):
+        a = pairs[p, 0]
+        b = pairs[p, 1]
+        dx = xy[a, 0] - xy[b, 0]
+        dy = xy[a, 1] - xy[b, 1]
+        r = np.exp(-(dx * dx + dy * dy) / (2.0 * sigma * sigma)) * np.exp(
+            kappa * (np.cos(2.0 * (theta[a] - theta[b])) - 1.0))
+        if r > psi[a, view[b]]:
+            psi[a, view[b]] = r
+        if r > psi[b, view[a]]:
+            psi[b, view[a]] = r
