@@ -107,6 +107,13 @@ the 15 minutes of issue 3 (`--rows all` adds the paper's row, edges alone,
 and the two pruning rows; the paper's row beside the preset's is in every
 `epfl-cv` table).
 
+## Speed
+
+posevote's time per image on one thread, beside OpenCV LINE-2D on the same
+EPFL frames, with the targets of issue 27:
+[`results/speed.md`](results/speed.md)
+(`python benchmarks/speed.py --markdown docs/results/speed.md`).
+
 ## Defaults
 
 Chosen by cross-validation on training data only (COIL training views; EPFL

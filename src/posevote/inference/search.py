@@ -375,7 +375,9 @@ def viewpoint_features(model: PoseModel, azimuth: float, elevation: float, *,
     views = np.flatnonzero(k1 >= k1_cutoff)
     if len(views) == 0:
         views = np.array([int(np.argmax(k1))])
-    idx = np.flatnonzero(np.isin(model.view, views))
+    chosen = np.zeros(model.n_views, dtype=bool)
+    chosen[views] = True
+    idx = np.flatnonzero(chosen[model.view])
     w = k1[model.view[idx]] * (model.weight[idx] if use_weights else 1.0)
     total = w.sum()
     xy = model.xy[idx]
