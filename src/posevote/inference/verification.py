@@ -107,6 +107,8 @@ def verify_candidates(probes: ProbeSet, image: NDArray[np.float64],
         found = [found[i] for i in np.sort(np.argsort(-looks, kind="stable")[:shortlist])]
     train_sq = np.einsum("ij,ij->i", descriptors, descriptors)
     best: tuple[tuple[int, int, int], float, tuple[float, ...]] | None = None
+    # Candidates of one viewpoint share their training views: copied once.
+    near_views: dict[int, tuple[NDArray[np.float32], NDArray[np.float32]]] = {}
     for index, near, d in found:
         v, a, s = index
         box = tuple(float(b) for b in boxes[v, a, s])
@@ -115,7 +117,10 @@ def verify_candidates(probes: ProbeSet, image: NDArray[np.float64],
                                                  float(probes.azimuth[v]), window=window)
             if regressed is not None:
                 box, d = moved, regressed
-        sq = train_sq[near] + float(d @ d) - 2.0 * (descriptors[near] @ d)
+        if v not in near_views:
+            near_views[v] = descriptors[near], train_sq[near]
+        near_desc, near_sq = near_views[v]
+        sq = near_sq + float(d @ d) - 2.0 * (near_desc @ d)
         dist = float(np.sqrt(max(float(sq.min()), 0.0)))
         if objectness is not None and objectness_weight:
             dist -= objectness_weight * (float(d @ objectness[:-1]) + objectness[-1])
