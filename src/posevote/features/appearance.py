@@ -5,7 +5,7 @@ descriptor of a box also sees where edges are *missing* and the shading
 inside it, which tells a car's front from its back. :func:`hog` computes
 what :func:`skimage.feature.hog` does with this module's settings (9
 orientations, 8-pixel cells, 2 x 2 blocks, L2-Hys) as one compiled kernel,
-ten times faster; :func:`hog_reference` calls scikit-image, for the tests.
+six times faster; :func:`hog_reference` calls scikit-image, for the tests.
 The model stores one per training view (:mod:`posevote.model.appearance`);
 the verification and the appearance refinement compare test boxes with them.
 """
