@@ -74,27 +74,45 @@ def box_descriptor(image: NDArray[np.floating], box: Sequence[float],
 
 
 @numba.njit(cache=True, nogil=True)
-def _hog_kernel(magnitude, orientation, cell, orientations, clip, eps, out
-                ):  # pragma: no cover - compiled
+def _hog_kernel(crop, cell, orientations, clip, eps, out):  # pragma: no cover - compiled
     """Cell histograms of gradient orientation, then L2-Hys over 2 x 2 blocks, into ``out``.
 
-    As scikit-image: each pixel's magnitude into its one orientation bin
-    (lower edge inclusive), the cell's mean.
+    As scikit-image: central differences in single precision (0 on the
+    border), magnitude in double, each pixel's magnitude into its one
+    orientation bin (lower edge inclusive) of the unsigned orientation, the
+    cell's mean. The bin is found by comparing the gradient's direction
+    cosine with the bin edges' instead of by an arctangent: the same bin
+    but within rounding of an edge, for a fraction of the cost.
     """
-    cy, cx = magnitude.shape[0] // cell, magnitude.shape[1] // cell
+    h, w = crop.shape
+    cy, cx = h // cell, w // cell
     hist = np.zeros((cy, cx, orientations))
-    width = 180.0 / orientations
+    # cos of the edges 180 k / orientations, k = 1 .. orientations - 1: decreasing.
+    edge_cos = np.cos(np.arange(1, orientations) * (np.pi / orientations))
+    # Integer division by a run-time cell size is slow per pixel: once per column.
+    col_cell = np.arange(w) // cell
     for r in range(cy * cell):
+        cr = r // cell
         for c in range(cx * cell):
-            o = orientation[r, c]
-            b = min(int(o / width), orientations - 1)
-            # The division can round across a bin edge; the edges decide.
-            if o < width * b:
-                b -= 1
-            elif o >= width * (b + 1):
+            g_row = np.float32(0.0)
+            g_col = np.float32(0.0)
+            if 0 < r < h - 1:
+                g_row = crop[r + 1, c] - crop[r - 1, c]
+            if 0 < c < w - 1:
+                g_col = crop[r, c + 1] - crop[r, c - 1]
+            y = np.float64(g_row)
+            x = np.float64(g_col)
+            magnitude = np.sqrt(x * x + y * y)
+            if magnitude == 0.0:
+                continue
+            # Unsigned orientation: the direction folded into [0, 180) degrees.
+            if y < 0.0 or (y == 0.0 and x < 0.0):
+                x = -x
+            cosine = x / magnitude
+            b = 0
+            while b < orientations - 1 and cosine <= edge_cos[b]:
                 b += 1
-            if 0 <= b < orientations:
-                hist[r // cell, c // cell, b] += magnitude[r, c]
+            hist[cr, col_cell[c], b] += magnitude
     hist /= cell * cell
     k = 0
     block = np.empty(4 * orientations)
@@ -122,18 +140,9 @@ def _hog_kernel(magnitude, orientation, cell, orientations, clip, eps, out
 
 def hog(crop: NDArray[Any]) -> NDArray[np.float32]:
     """HOG descriptor of a grey crop (at least 16 x 16 pixels), as :func:`hog_reference`."""
-    crop = np.asarray(crop, dtype=np.float32)
-    # As scikit-image: central differences in single precision (0 on the
-    # border), magnitude and orientation in double by numpy, so that a pixel
-    # on a bin edge falls in the same bin.
-    g_row, g_col = np.zeros_like(crop), np.zeros_like(crop)
-    g_row[1:-1] = crop[2:] - crop[:-2]
-    g_col[:, 1:-1] = crop[:, 2:] - crop[:, :-2]
-    g_row64, g_col64 = g_row.astype(np.float64), g_col.astype(np.float64)
-    magnitude = np.hypot(g_col64, g_row64)
-    orientation = np.rad2deg(np.arctan2(g_row64, g_col64)) % 180.0
+    crop = np.ascontiguousarray(crop, dtype=np.float32)
     out = np.empty(descriptor_length(crop.shape[:2]), dtype=np.float64)
-    _hog_kernel(magnitude, orientation, _CELL, _ORIENTATIONS, _HYS_CLIP, _EPS, out)
+    _hog_kernel(crop, _CELL, _ORIENTATIONS, _HYS_CLIP, _EPS, out)
     return out.astype(np.float32)
 
 
