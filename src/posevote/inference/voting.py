@@ -223,10 +223,11 @@ def blurred_points(xy: NDArray[np.float64], values: NDArray[np.float64], shape: 
     index = np.concatenate([r0 * ws + c0, r0 * ws + c1, r1 * ws + c0, r1 * ws + c1])
     mass = np.concatenate([v * (1 - fx) * (1 - fy), v * fx * (1 - fy), v * (1 - fx) * fy,
                            v * fx * fy])
-    coarse = np.bincount(index, weights=mass, minlength=hs * ws).astype(np.float32)
+    splat = np.bincount(index, weights=mass, minlength=hs * ws).astype(np.float32)
     # The splat spreads a point by k^2 / 6 (px^2) on average: blurred that much less.
-    coarse = cv2.GaussianBlur(coarse.reshape(hs, ws), (0, 0), np.sqrt(sigma**2 - k * k / 6.0) / k,
-                              borderType=cv2.BORDER_CONSTANT)
+    coarse = np.asarray(cv2.GaussianBlur(splat.reshape(hs, ws), (0, 0),
+                                         np.sqrt(sigma**2 - k * k / 6.0) / k,
+                                         borderType=cv2.BORDER_CONSTANT), dtype=np.float32)
     return _refine(coarse, k, shape)
 
 
@@ -256,7 +257,9 @@ def smooth(plane: NDArray[np.float32], sigma: float, border: int) -> NDArray[np.
     h, w = plane.shape
     padded = cv2.copyMakeBorder(plane, 0, hs * k - h, 0, ws * k - w, border, value=0.0)
     coarse = cv2.resize(padded, (ws, hs), interpolation=cv2.INTER_AREA)
-    return _refine(cv2.GaussianBlur(coarse, (0, 0), sigma / k, borderType=border), k, plane.shape)
+    blurred = np.asarray(cv2.GaussianBlur(coarse, (0, 0), sigma / k, borderType=border),
+                         dtype=np.float32)
+    return _refine(blurred, k, plane.shape)
 
 
 def vote_cell(position_sigma: float) -> float:
@@ -292,7 +295,7 @@ def merge_voters(features: EdgeFeatures, weight: NDArray[np.float64], n_bins: in
     nx, ny = int(cells[:, 0].max()) + 1, int(cells[:, 1].max()) + 1
     key = (bins * ny + cells[:, 1]) * nx + cells[:, 0]
     unique, group = np.unique(key, return_inverse=True)
-    total = np.bincount(group, weights=weight)
+    total = np.bincount(group, weights=weight).astype(np.float64)
     safe = np.where(total > 0, total, 1.0)
     xy = np.stack([np.bincount(group, weights=weight * features.xy[:, k]) / safe
                    for k in range(2)], axis=1)
