@@ -34,7 +34,7 @@ from posevote.results import Hypothesis
 
 #: Training features that vote per probe (an even subset; all count in the
 #: exact score): the vote only has to find the peak's neighbourhood.
-MAX_VOTERS = 200
+MAX_VOTERS = 100
 #: Vote peaks per probe whose exact score is computed; the best is polished.
 VOTE_CANDIDATES = 2
 #: The most probes (viewpoints x in-plane angles x scales) one search may

@@ -151,8 +151,8 @@ def prepare_test(features: EdgeFeatures, shape: tuple[int, int], *, position_sig
     lut = orientation_kernel(np.linspace(0.0, np.pi / 2, _LUT_SIZE), orientation_kappa)
     cut = orientation_cutoff(orientation_kappa, vote_cutoff)
     radius = int(np.ceil(cut / (np.pi / vote_bins)))
-    vote_xy, vote_theta, vote_weight, bin_start = merge_voters(features, weight, vote_bins,
-                                                               vote_cell(position_sigma))
+    vote_xy, vote_theta, vote_weight, bin_start = merge_voters(
+        features, weight, vote_bins, VOTER_CELLS * vote_cell(position_sigma))
     return TestMaps(xy=features.xy.copy(), theta=features.theta.copy(), vote_xy=vote_xy,
                     vote_theta=vote_theta, vote_weight=vote_weight, bin_start=bin_start,
                     density=density, lut=np.where(lut >= vote_cutoff, lut, 0.0),
@@ -260,6 +260,10 @@ def smooth(plane: NDArray[np.float32], sigma: float, border: int) -> NDArray[np.
     blurred = np.asarray(cv2.GaussianBlur(coarse, (0, 0), sigma / k, borderType=border),
                          dtype=np.float32)
     return _refine(blurred, k, plane.shape)
+
+
+#: The test features merged into one voter lie in a square of this many vote cells.
+VOTER_CELLS = 2.0
 
 
 def vote_cell(position_sigma: float) -> float:
