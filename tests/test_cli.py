@@ -20,6 +20,19 @@ def model_file(training_folder, tmp_path_factory):
     return out
 
 
+def test_train_threads_give_the_same_model_and_are_not_stored(model_file, training_folder,
+                                                              tmp_path):
+    from posevote import PoseEstimator
+
+    out = tmp_path / "threads.npz"
+    result = CliRunner().invoke(cli, ["train", str(training_folder), "-o", str(out),
+                                      "--threads", "2"])
+    assert result.exit_code == 0, result.output
+    one, two = PoseEstimator.load(model_file), PoseEstimator.load(out)
+    assert two.n_jobs == 1
+    np.testing.assert_array_equal(one.model_.weight, two.model_.weight)
+
+
 @pytest.fixture
 def test_image(tmp_path, draw):
     path = tmp_path / "test.png"

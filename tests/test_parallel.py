@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from posevote._parallel import ordered_map
+from posevote._parallel import ordered_map, thread_map
 
 
 def _square(x: int, offset: int) -> int:
@@ -63,3 +63,21 @@ def test_an_evaluation_on_dask_equals_the_local_one(client, tiny_protocol, tmp_p
     a, b = (sorted(read_records(tmp_path / d / "records" / key), key=lambda r: r["image"])
             for d in ("local", "dask"))
     assert [r["estimate_deg"] for r in a] == [r["estimate_deg"] for r in b]
+
+
+@pytest.mark.parametrize("threads", [1, 3])
+def test_thread_map_keeps_the_order_and_raises_in_place(threads):
+    import time
+
+    def slow(i: int) -> int:
+        time.sleep(0.002 * (i % 3))
+        if i == 7:
+            raise ValueError("item 7")
+        return i * i
+
+    got = []
+    with pytest.raises(ValueError, match="item 7"):
+        for value in thread_map(slow, range(20), threads, ahead=2):
+            got.append(value)
+    assert got == [i * i for i in range(7)]
+    assert list(thread_map(lambda i: -i, range(50), threads)) == [-i for i in range(50)]

@@ -14,8 +14,9 @@ from __future__ import annotations
 import functools
 import os
 import sys
+from collections import deque
 from collections.abc import Callable, Iterable, Iterator
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import Future, ProcessPoolExecutor, ThreadPoolExecutor
 from typing import Any
 
 from threadpoolctl import threadpool_limits
@@ -102,3 +103,29 @@ def _one_thread(fn: Callable[..., Any], *args: Any) -> Any:
     """``fn(*args)`` with BLAS on one thread: a cluster's worker fills its core as a local one does."""
     with threadpool_limits(1):
         return fn(*args)
+
+
+def thread_map(function: Callable[[Any], Any], items: Iterable[Any], n_threads: int,
+               ahead: int = 4) -> Iterator[Any]:
+    """``map(function, items)`` in ``n_threads`` threads, the results yielded in order.
+
+    At most ``ahead`` results per thread wait to be taken, so that memory
+    stays bounded when the consumer is slower than the threads. With one
+    thread it is the plain ``map``. An exception is raised where its item's
+    result would have been yielded.
+    """
+    if n_threads <= 1:
+        yield from map(function, items)
+        return
+    with ThreadPoolExecutor(max_workers=n_threads) as pool:
+        pending: deque[Future[Any]] = deque()
+        try:
+            for item in items:
+                pending.append(pool.submit(function, item))
+                if len(pending) >= ahead * n_threads:
+                    yield pending.popleft().result()
+            while pending:
+                yield pending.popleft().result()
+        finally:
+            for future in pending:
+                future.cancel()

@@ -99,8 +99,8 @@ class PoseEstimator(GroupedParams):
     min_score : float, default 0.0
         Below this best score the estimate is "not found".
     n_jobs : int, default 1
-        Threads probing viewpoints at once: the time of one estimate, not its
-        result, which is the same for every value.
+        Threads probing viewpoints (and reading training images) at once:
+        the time of an estimate or of training, not its result.
     """
 
     _groups = OPTION_GROUPS
@@ -196,7 +196,8 @@ class PoseEstimator(GroupedParams):
                               category=category, edges=self.edges, kernel=self.kernel,
                               morph=self.morph_views, prune=resolve_preset(self.prune),
                               appearance=self.appearance is not None, progress=progress,
-                              channels=channels, object_height_m=object_height_m)
+                              channels=channels, object_height_m=object_height_m,
+                              n_threads=self.n_jobs)
         self._set_trained(trained)
         return self
 

@@ -42,6 +42,24 @@ def test_masks_instances_and_pruning(synthetic_training):
     assert trained.appearance is None and trained.viewpoint_kappa > 0
 
 
+def test_threads_train_the_same_model(synthetic_training):
+    images, az, boxes = synthetic_training
+    instances = ["a"] * 9 + ["b"] * 9
+    one = train_model(images, az, boxes=boxes, instances=instances, appearance=True)
+    two = train_model(images, az, boxes=boxes, instances=instances, appearance=True, n_threads=3)
+    for a, b in ((one.model, two.model), (one.full_model, two.full_model)):
+        np.testing.assert_array_equal(a.xy, b.xy)
+        np.testing.assert_array_equal(a.weight, b.weight)
+    assert one.appearance is not None and two.appearance is not None
+    np.testing.assert_array_equal(one.appearance.descriptors, two.appearance.descriptors)
+    np.testing.assert_array_equal(one.appearance.regressor, two.appearance.regressor)
+    # The first bad image is named, as without threads.
+    bad = list(images)
+    bad[5] = np.zeros((32, 32))
+    with pytest.raises(ValueError, match=r"images\[5\]: no edges found"):
+        train_model(bad, az, n_threads=2)
+
+
 def test_appearance_descriptors_from_boxes_or_masks_agree(synthetic_training):
     # With every box given, the descriptors are computed image by image; with
     # boxes from masks, after all of them are known: the same boxes give the

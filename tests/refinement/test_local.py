@@ -131,3 +131,38 @@ def test_rescale_anchor_finds_the_scale_in_object_units(synthetic_training, draw
     assert anchor.position == pytest.approx((x + (w - 1) / 2, y + (h - 1) / 2), abs=3.0)
     with pytest.raises(ValueError, match="one TestMaps per scale"):
         rescale_anchor(probes, mode, est.model_, maps[:2], **kw)
+
+
+def test_compass_search_kernel_agrees_with_reference():
+    from posevote.features import EdgeFeatures
+    from posevote.inference.voting import gather_score, prepare_test
+    from posevote.refinement.local import _compass_search, compass_search_reference
+
+    rng = np.random.default_rng(8)
+    model_xy = rng.uniform(-25, 25, (120, 2))
+    model_theta = rng.uniform(0, np.pi, 120)
+    weight = np.full(120, 1 / 120)
+    alpha, scale, t = 0.1, 1.05, np.array([62.0, 48.0])
+    c, s = np.cos(alpha), np.sin(alpha)
+    placed = scale * model_xy @ np.array([[c, s], [-s, c]]) + t
+    maps = prepare_test(EdgeFeatures(xy=placed, theta=np.mod(model_theta + alpha, np.pi)),
+                        (100, 130), position_sigma=2.0, orientation_kappa=8.0)
+    start = np.array([0.05, np.log(1.0), 60.0, 50.0])
+    unit = np.array([1 / 25, 1 / 25, 1.0, 1.0])
+    bounds = np.array([-np.inf, np.inf])
+    z, best, initial = _compass_search(maps.density, model_xy, model_theta, weight, start, unit,
+                                       bounds, 8.0)
+    z_ref, best_ref, initial_ref = compass_search_reference(maps.density, model_xy, model_theta,
+                                                            weight, start, unit, bounds, 8.0)
+    np.testing.assert_allclose(z, z_ref, atol=1e-9)
+    assert best == pytest.approx(best_ref, rel=1e-9) and initial == pytest.approx(initial_ref)
+    # It climbs to the true pose, and the score it reports is the score there.
+    found = start + z * unit
+    assert best > initial
+    assert np.all(np.abs(found - [alpha, np.log(scale), *t]) <= [0.02, 0.02, 0.5, 0.5])
+    assert best == pytest.approx(gather_score(maps.density, model_xy, model_theta, weight,
+                                              found[0], np.exp(found[1]), found[2], found[3]))
+    # Within its bounds.
+    tight = np.array([-0.01, 0.01])
+    z, *_ = _compass_search(maps.density, model_xy, model_theta, weight, start, unit, tight, 8.0)
+    assert abs(start[1] + z[1] * unit[1]) <= 0.01 + 1e-12 and np.all(np.abs(z) <= 8.0)

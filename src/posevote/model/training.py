@@ -18,6 +18,7 @@ import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from posevote._parallel import thread_map
 from posevote.camera import check_object_height
 from posevote.data.images import load_image, read_mask
 from posevote.features.edges import EdgeFeatures, EdgeOptions, box_mask, extract_edges
@@ -149,7 +150,8 @@ def train_model(images: Sequence[str | Path | NDArray], poses: ArrayLike, *,
                 edges: EdgeOptions = EdgeOptions(), kernel: KernelOptions = KernelOptions(),
                 morph: bool = False, prune: PruningPreset | None = None,
                 appearance: bool = False, progress: Callable[[int], None] | None = None,
-                channels: str = "rgb", object_height_m: float | None = None) -> TrainedModel:
+                channels: str = "rgb", object_height_m: float | None = None,
+                n_threads: int = 1) -> TrainedModel:
     """Learn a model from pose-annotated images (Sec. II-A, II-C, III-A).
 
     Parameters
@@ -166,6 +168,9 @@ def train_model(images: Sequence[str | Path | NDArray], poses: ArrayLike, *,
         Prune the pooled model with these knobs.
     appearance : bool
         Learn the appearance model (descriptors, classifier, box regressions).
+    n_threads : int, optional
+        Threads reading the images and weighing the instances' features: the
+        time of training, not its result.
 
     Returns
     -------
@@ -177,8 +182,10 @@ def train_model(images: Sequence[str | Path | NDArray], poses: ArrayLike, *,
                         f"path {str(images)!r} (read a training folder with read_poses_csv)")
     images = list(images)
     views = _extract(images, poses, boxes, masks, instances, edges=edges, morph=morph,
-                     appearance=appearance, progress=progress, channels=channels)
-    return _pool(views, category=category, kernel=kernel, prune=prune, height=height)
+                     appearance=appearance, progress=progress, channels=channels,
+                     n_threads=n_threads)
+    return _pool(views, category=category, kernel=kernel, prune=prune, height=height,
+                 n_threads=n_threads)
 
 
 @dataclass(kw_only=True, eq=False)
@@ -197,14 +204,18 @@ class _Views:
 def _extract(images: list[Any], poses: ArrayLike, boxes: ArrayLike | None,
              masks: Sequence[Any] | None, instances: Sequence[str] | None, *,
              edges: EdgeOptions, morph: bool, appearance: bool,
-             progress: Callable[[int], None] | None, channels: str) -> _Views:
-    """Each image's edges inside its box (and mask), box and pose (one image at a time)."""
+             progress: Callable[[int], None] | None, channels: str, n_threads: int = 1
+             ) -> _Views:
+    """Each image's edges inside its box (and mask), box and pose (``n_threads`` images at a time)."""
     pose_arr, box_arr, mask_list, names = _check_inputs(images, poses, boxes, masks, instances)
     k = len(images)
     feats, centres, sizes = [], np.zeros((k, 2)), np.zeros((k, 2))
     collector = AppearanceCollector(box_arr) if appearance else None
     crops = ViewCrops() if morph else None
-    for i, image in enumerate(images):
+
+    def read(i: int) -> tuple[NDArray[np.float64], NDArray[np.float64], EdgeFeatures]:
+        """Image ``i``, its box and its edges inside the box (and mask)."""
+        image = images[i]
         label = str(image) if isinstance(image, (str, Path)) else f"images[{i}]"
         img = load_image(image, name=label, channels=channels)
         mask = _read_mask(label, mask_list[i], img.shape)
@@ -219,6 +230,10 @@ def _extract(images: list[Any], poses: ArrayLike, boxes: ArrayLike | None,
         if len(f) == 0:
             raise ValueError(f"{label}: no edges found on the object; check the box/mask "
                              "or lower EdgeOptions.thresholds")
+        return img, box, f
+
+    # Images are read in threads; what draws random boxes runs here, in order.
+    for i, (img, box, f) in enumerate(thread_map(read, range(k), n_threads)):
         feats.append(f)
         if collector is not None:
             collector.add(img, box.tolist(), float(pose_arr[i, 0]))
@@ -233,7 +248,7 @@ def _extract(images: list[Any], poses: ArrayLike, boxes: ArrayLike | None,
 
 
 def _pool(views: _Views, *, category: str, kernel: KernelOptions, prune: PruningPreset | None,
-          height: float | None) -> TrainedModel:
+          height: float | None, n_threads: int = 1) -> TrainedModel:
     """psi from the views (Sec. II-A), the weights (Eq. 4) and the pruning (Sec. III-A)."""
     feats, centres, sizes, pose_arr, names = (views.feats, views.centres, views.sizes,
                                               views.poses, views.names)
@@ -258,7 +273,8 @@ def _pool(views: _Views, *, category: str, kernel: KernelOptions, prune: Pruning
             feats, crops, neighbours, centers=centres, scales=scales, inplanes=pose_arr[:, 2]))
     kappa = viewpoint_kappa(model, kernel.viewpoint_bandwidth_deg)
     weights = feature_weights(model, position_sigma=kernel.position_sigma,
-                              orientation_kappa=ORIENTATION_KAPPA, viewpoint_kappa=kappa)
+                              orientation_kappa=ORIENTATION_KAPPA, viewpoint_kappa=kappa,
+                              n_threads=n_threads)
     full = model.with_weights(weights)
     searched = full if prune is None else prune_model(
         full, prune, position_sigma=kernel.position_sigma, orientation_kappa=ORIENTATION_KAPPA)

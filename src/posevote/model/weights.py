@@ -23,12 +23,14 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
+from posevote._parallel import thread_map
 from posevote.model.density import PoseModel
 from posevote.model.kernels import orientation_kernel, position_kernel, viewpoint_kernel
 
 
 def feature_weights(model: PoseModel, *, position_sigma: float, orientation_kappa: float,
-                    viewpoint_kappa: float, max_pairs: int = 50_000_000) -> NDArray[np.float64]:
+                    viewpoint_kappa: float, max_pairs: int = 50_000_000, n_threads: int = 1
+                    ) -> NDArray[np.float64]:
     """Weights ``wt_i`` of Eq. 4 for every training feature.
 
     Parameters
@@ -43,6 +45,8 @@ def feature_weights(model: PoseModel, *, position_sigma: float, orientation_kapp
         Concentration of the pose kernel K1 on viewing directions.
     max_pairs : int, optional
         Guard on the number of nearby feature pairs examined per instance.
+    n_threads : int, optional
+        Instances weighed at once (each on its own: the same weights).
 
     Returns
     -------
@@ -57,15 +61,20 @@ def feature_weights(model: PoseModel, *, position_sigma: float, orientation_kapp
     """
     weights = np.zeros(model.n_features)
     directions = model.view_directions()
-    for inst in np.unique(model.view_instance):
+
+    def weigh(inst: int) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
         views = np.flatnonzero(model.view_instance == inst)
         local = np.full(model.n_views, -1, dtype=np.int64)
         local[views] = np.arange(len(views))
         idx = np.flatnonzero(local[model.view] >= 0)
-        weights[idx] = _instance_weights(model.xy[idx], model.theta[idx], local[model.view[idx]],
-                                         directions[views], position_sigma=position_sigma,
-                                         orientation_kappa=orientation_kappa,
-                                         viewpoint_kappa=viewpoint_kappa, max_pairs=max_pairs)
+        return idx, _instance_weights(model.xy[idx], model.theta[idx], local[model.view[idx]],
+                                      directions[views], position_sigma=position_sigma,
+                                      orientation_kappa=orientation_kappa,
+                                      viewpoint_kappa=viewpoint_kappa, max_pairs=max_pairs)
+
+    for idx, values in thread_map(weigh, np.unique(model.view_instance).tolist(), n_threads,
+                                  ahead=1):
+        weights[idx] = values
     return weights
 
 

@@ -14,10 +14,12 @@ from collections.abc import Sequence
 from dataclasses import replace
 from typing import Any
 
+import numba
 import numpy as np
+from numpy.typing import NDArray
 
 from posevote.inference.search import ProbeSet, SearchSetup, viewpoint_features
-from posevote.inference.voting import TestMaps, gather_score
+from posevote.inference.voting import TestMaps, gather_score, gather_score_reference
 from posevote.model.density import PoseModel
 from posevote.model.kernels import K1_CUTOFF
 from posevote.refinement.fitting import (
@@ -35,6 +37,9 @@ def polish_pose(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps, *,
                 max_shift: float = 8.0, scale_bounds: tuple[float, float] | None = None
                 ) -> Hypothesis:
     """Maximise the exact p(w) around a hypothesis over (alpha, log s, u, v).
+
+    A compass search (:func:`_compass_search`, compiled): steps along each
+    axis from about a pixel down to a twentieth of one.
 
     Parameters
     ----------
@@ -71,27 +76,96 @@ def polish_pose(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps, *,
     log_lo, log_hi = (-np.inf, np.inf) if scale_bounds is None else np.log(scale_bounds)
     log_lo, log_hi = min(log_lo, start[1]), max(log_hi, start[1])
 
-    def negative_score(z: np.ndarray) -> float:
-        alpha, log_s, u, v = start + z * unit
-        if np.any(np.abs(z) > max_shift) or not log_lo <= log_s <= log_hi:
-            return 0.0
-        return -gather_score(maps.density, feats.xy, feats.theta, feats.weight, alpha,
-                             float(np.exp(log_s)), u, v)
-
-    initial = -negative_score(np.zeros(4))
-    # imported where used, so that a command-line start does not pay for it
-    from scipy.optimize import minimize
-
-    result = minimize(negative_score, np.zeros(4), method="Nelder-Mead",
-                      options={"xatol": 0.05, "fatol": 1e-5, "maxfev": 400,
-                               "initial_simplex": np.vstack([np.zeros(4), 1.5 * np.eye(4)])})
-    if not np.isfinite(result.fun) or -result.fun <= initial:
+    bounds = np.array([log_lo, log_hi])
+    z, best, initial = _compass_search(maps.density, feats.xy, feats.theta, feats.weight, start,
+                                       unit, bounds, max_shift)
+    if not best > initial:
         return replace(hypothesis, score=float(initial))
-    alpha, log_s, u, v = start + result.x * unit
+    alpha, log_s, u, v = start + z * unit
     scale = float(np.exp(log_s))
     return replace(hypothesis, inplane=float(alpha), scale=scale, position=(float(u), float(v)),
                    box=box_from_pose(np.array([u, v]), feats.box * scale, float(alpha)),
-                   score=float(-result.fun))
+                   score=float(best))
+
+
+#: The compass search starts with steps of this many units (about a pixel at
+#: the model's typical radius) and stops below ``_COMPASS_LAST``; at most
+#: ``_COMPASS_EVALS`` evaluations.
+_COMPASS_FIRST = 1.5
+_COMPASS_LAST = 0.05
+_COMPASS_EVALS = 400
+
+
+@numba.njit(cache=True, nogil=True)
+def _compass_search(density, xy, theta, weight, start, unit, log_bounds, max_shift
+                    ):  # pragma: no cover - compiled
+    """Maximise p(w) over ``start + z * unit`` by a compass search in z (|z| <= max_shift).
+
+    From z = 0, each round tries a step of the current length along each of
+    the four axes, both ways, and moves to the best that improves; without
+    one, the step is halved. Returns (z, its score, the score at z = 0).
+    """
+    z = np.zeros(4)
+    best = gather_score(density, xy, theta, weight, start[0], np.exp(start[1]), start[2],
+                        start[3])
+    initial = best
+    step = _COMPASS_FIRST
+    evals = 1
+    trial = np.empty(4)
+    while step >= _COMPASS_LAST and evals < _COMPASS_EVALS:
+        move = -1
+        move_value = best
+        for k in range(8):
+            trial[:] = z
+            trial[k // 2] += step if k % 2 == 0 else -step
+            if abs(trial[k // 2]) > max_shift:
+                continue
+            log_s = start[1] + trial[1] * unit[1]
+            if log_s < log_bounds[0] or log_s > log_bounds[1]:
+                continue
+            value = gather_score(density, xy, theta, weight, start[0] + trial[0] * unit[0],
+                                 np.exp(log_s), start[2] + trial[2] * unit[2],
+                                 start[3] + trial[3] * unit[3])
+            evals += 1
+            if value > move_value:
+                move = k
+                move_value = value
+        if move < 0:
+            step *= 0.5
+        else:
+            z[move // 2] += step if move % 2 == 0 else -step
+            best = move_value
+    return z, best, initial
+
+
+def compass_search_reference(density: NDArray[np.float32], xy: NDArray[np.float64],
+                             theta: NDArray[np.float64], weight: NDArray[np.float64],
+                             start: NDArray[np.float64], unit: NDArray[np.float64],
+                             log_bounds: NDArray[np.float64], max_shift: float
+                             ) -> tuple[NDArray[np.float64], float, float]:
+    """:func:`_compass_search` in numpy (for tests)."""
+    def score(z: NDArray[np.float64]) -> float:
+        alpha, log_s, u, v = start + z * unit
+        return gather_score_reference(density, xy, theta, weight, alpha, float(np.exp(log_s)),
+                                      u, v)
+
+    z, step, evals = np.zeros(4), _COMPASS_FIRST, 1
+    best = initial = score(z)
+    while step >= _COMPASS_LAST and evals < _COMPASS_EVALS:
+        trials = []
+        for k in range(8):
+            trial = z.copy()
+            trial[k // 2] += step if k % 2 == 0 else -step
+            log_s = start[1] + trial[1] * unit[1]
+            if abs(trial[k // 2]) <= max_shift and log_bounds[0] <= log_s <= log_bounds[1]:
+                trials.append((score(trial), k, trial))
+                evals += 1
+        improving = [t for t in trials if t[0] > best]
+        if not improving:
+            step *= 0.5
+            continue
+        best, _, z = max(improving, key=lambda t: (t[0], -t[1]))
+    return z, best, initial
 
 
 def probe_pose(probes: ProbeSet, viewpoint: int, inplane: int, scale: int) -> Hypothesis:
