@@ -246,6 +246,7 @@ def train(source: Path, output: Path, layout: str, objects: str | None, cars: st
         if layout != "bop":
             height = _object_height(ts, camera_file, object_height_m)
         est = PoseEstimator.from_preset(preset, **settings)
+        est._validate_params()   # the stored n_jobs too, before the threads replace it
         jobs = est.n_jobs
         est.set_params(n_jobs=threads)
         with _progress(len(ts), "features") as bar:
