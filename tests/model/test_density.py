@@ -58,3 +58,20 @@ def test_instance_sizes_follow_the_instances(toy_model, tmp_path, draw):
     assert toy_model().size_of(0) == 1.0  # built without sizes
     est.save(tmp_path / "m.npz")
     assert PoseEstimator.load(tmp_path / "m.npz").full_model_.instance_size == (big, small)
+
+
+def test_features_of_views_as_a_mask_would_select(toy_model):
+    from dataclasses import replace
+
+    toy_model = toy_model()
+    views = np.array([0, 2])
+    want = np.flatnonzero(np.isin(toy_model.view, views))
+    assert len(want) > 0
+    np.testing.assert_array_equal(toy_model.features_of(views), want)
+    assert len(toy_model.features_of(np.array([], dtype=np.intp))) == 0
+    # Features not stored view by view take the mask's way: the same answer.
+    order = np.random.default_rng(0).permutation(toy_model.n_features)
+    shuffled = replace(toy_model, xy=toy_model.xy[order], theta=toy_model.theta[order],
+                       view=toy_model.view[order], weight=toy_model.weight[order])
+    np.testing.assert_array_equal(shuffled.features_of(views),
+                                  np.flatnonzero(np.isin(shuffled.view, views)))

@@ -26,6 +26,7 @@ from posevote.inference.voting import (
     prepare_test,
     scaled_features,
     search_translations,
+    subsample_features,
 )
 from posevote.model.density import PoseModel, viewpoint_weights
 from posevote.model.kernels import K1_CUTOFF, ORIENTATION_KAPPA
@@ -375,9 +376,7 @@ def viewpoint_features(model: PoseModel, azimuth: float, elevation: float, *,
     views = np.flatnonzero(k1 >= k1_cutoff)
     if len(views) == 0:
         views = np.array([int(np.argmax(k1))])
-    chosen = np.zeros(model.n_views, dtype=bool)
-    chosen[views] = True
-    idx = np.flatnonzero(chosen[model.view])
+    idx = model.features_of(views)
     w = k1[model.view[idx]] * (model.weight[idx] if use_weights else 1.0)
     total = w.sum()
     xy = model.xy[idx]
@@ -472,17 +471,17 @@ def probe_poses(
         box[v] = feats.box
         if feats.weight.sum() <= 0:
             return
+        # Subsampled once for all the viewpoint's scales.
+        xy, theta, weight = subsample_features(feats.xy, feats.theta, feats.weight, max_features)
         if isinstance(maps, TestMaps):
             score[v], translation[v] = search_translations(
-                maps, feats.xy, feats.theta, feats.weight, inplanes=inplanes, scales=scales,
-                cell=cell, n_candidates=n_candidates, max_voters=max_voters,
-                max_features=max_features)
+                maps, xy, theta, weight, inplanes=inplanes, scales=scales, cell=cell,
+                n_candidates=n_candidates, max_voters=max_voters)
         else:
             for k, (scale_maps, factor) in enumerate(zip(per_scale, scales, strict=True)):
                 sc, tr = search_translations(
-                    scale_maps, feats.xy, feats.theta, feats.weight, inplanes=inplanes,
-                    scales=np.ones(1), cell=cell, n_candidates=n_candidates,
-                    max_voters=max_voters, max_features=max_features)
+                    scale_maps, xy, theta, weight, inplanes=inplanes, scales=np.ones(1),
+                    cell=cell, n_candidates=n_candidates, max_voters=max_voters)
                 score[v, :, k], translation[v, :, k] = sc[:, 0], tr[:, 0] * factor
 
     if n_threads == 1 or n_v < 2:

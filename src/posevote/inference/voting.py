@@ -766,6 +766,21 @@ def _search_kernel(train_xy, train_theta, train_w, alphas, scales, test_xy, test
             out_t[a, s, 1] = best_v
 
 
+def subsample_features(xy: NDArray[np.float64], theta: NDArray[np.float64],
+                       weight: NDArray[np.float64], max_features: int | None
+                       ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """At most about ``max_features`` of the features (an even stride), their weights
+    scaled to the same total; contiguous float64 arrays (the kernels' own)."""
+    if max_features is not None and len(theta) > max_features:
+        keep = slice(0, None, int(np.ceil(len(theta) / max_features)))
+        total = float(np.sum(weight))
+        xy, theta, weight = xy[keep], theta[keep], weight[keep]
+        subtotal = float(np.sum(weight))
+        weight = weight * (total / subtotal) if subtotal > 0 else weight
+    return (np.ascontiguousarray(xy, dtype=np.float64), np.ascontiguousarray(theta, dtype=np.float64),
+            np.ascontiguousarray(weight, dtype=np.float64))
+
+
 def search_translations(maps: TestMaps, train_xy: NDArray[np.float64],
                         train_theta: NDArray[np.float64], train_w: NDArray[np.float64], *,
                         inplanes: NDArray[np.float64], scales: NDArray[np.float64],
@@ -813,20 +828,13 @@ def search_translations(maps: TestMaps, train_xy: NDArray[np.float64],
     if cell is None:
         cell = vote_cell(maps.position_sigma)
     taps = blur_taps(maps.position_sigma / cell)
-    if max_features is not None and len(train_theta) > max_features:
-        keep = slice(0, None, int(np.ceil(len(train_theta) / max_features)))
-        total = float(np.sum(train_w))
-        train_xy, train_theta, train_w = train_xy[keep], train_theta[keep], train_w[keep]
-        subtotal = float(np.sum(train_w))
-        train_w = train_w * (total / subtotal) if subtotal > 0 else train_w
+    train_xy, train_theta, train_w = subsample_features(train_xy, train_theta, train_w,
+                                                        max_features)
     stride = 1 if max_voters is None else max(1, int(np.ceil(len(train_theta) / max_voters)))
     if len(train_theta) and len(maps.vote_theta):
-        _search_kernel(np.ascontiguousarray(train_xy, dtype=np.float64),
-                       np.ascontiguousarray(train_theta, dtype=np.float64),
-                       np.ascontiguousarray(train_w, dtype=np.float64),
-                       np.asarray(inplanes, dtype=np.float64), np.asarray(scales, dtype=np.float64),
-                       maps.vote_xy, maps.vote_theta, maps.vote_weight, maps.bin_start, maps.lut,
-                       maps.vote_radius,
+        _search_kernel(train_xy, train_theta, train_w, np.asarray(inplanes, dtype=np.float64),
+                       np.asarray(scales, dtype=np.float64), maps.vote_xy, maps.vote_theta,
+                       maps.vote_weight, maps.bin_start, maps.lut, maps.vote_radius,
                        maps.density, float(cell), taps, int(n_candidates), stride, out_score,
                        out_t)
     return out_score, out_t

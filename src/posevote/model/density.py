@@ -106,6 +106,24 @@ class PoseModel:
     def _view_directions(self) -> NDArray[np.float64]:
         return viewing_direction(self.view_azimuth, self.view_elevation)
 
+    def features_of(self, views: NDArray[np.intp]) -> NDArray[np.intp]:
+        """Indices of the features of ``views`` (sorted ascending), in increasing order."""
+        starts = self._view_starts
+        if starts is None:
+            chosen = np.zeros(self.n_views, dtype=bool)
+            chosen[views] = True
+            return np.flatnonzero(chosen[self.view])
+        # Features stored view by view: the views' ranges, without a pass over all.
+        lo, count = starts[views], starts[views + 1] - starts[views]
+        offset = np.concatenate([[0], np.cumsum(count)[:-1]])
+        return np.arange(int(count.sum())) + np.repeat(lo - offset, count)
+
+    @cached_property
+    def _view_starts(self) -> NDArray[np.intp] | None:
+        if len(self.view) and np.any(np.diff(self.view) < 0):
+            return None
+        return np.searchsorted(self.view, np.arange(self.n_views + 1)).astype(np.intp)
+
     def instance_model(self, instance: int) -> PoseModel:
         """The training pairs of one instance only (views re-indexed; built once, then cached)."""
         if not 0 <= instance < len(self.instance_names):
