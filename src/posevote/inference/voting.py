@@ -338,7 +338,8 @@ def restrict_maps(maps: TestMaps, lo: NDArray[np.float64], hi: NDArray[np.float6
     h, w = maps.shape
     c0, r0 = (max(int(np.floor(x)), 0) for x in lo)
     c1, r1 = min(int(np.ceil(hi[0])) + 1, w), min(int(np.ceil(hi[1])) + 1, h)
-    density = np.zeros_like(maps.density)
+    # Zeroed pages from the system (calloc): those outside the window are never filled.
+    density = np.zeros(maps.density.shape, dtype=maps.density.dtype)
     if c1 > c0 and r1 > r0:
         density[:, r0:r1, c0:c1] = maps.density[:, r0:r1, c0:c1]
     return TestMaps(xy=maps.xy[inside], theta=maps.theta[inside], vote_xy=maps.vote_xy[voting],
