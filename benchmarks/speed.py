@@ -39,6 +39,7 @@ from pathlib import Path
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
+import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 from _markdown import write_markdown  # noqa: E402
 
@@ -46,6 +47,9 @@ from posevote import PoseEstimator  # noqa: E402
 from posevote.data import read_coil, read_epfl  # noqa: E402
 from posevote.evaluation.protocols import _epfl_folder, _find  # noqa: E402
 from posevote.evaluation.synthetic import paste_on_clutter  # noqa: E402
+
+# One thread for OpenCV too (its resizes and blurs), as LINE-2D gets.
+cv2.setNumThreads(1)
 
 #: Issue 27's targets, seconds.
 TARGETS = {"epfl": 0.1, "coil": 0.010, "clutter": 0.3, "train": 15.0}
