@@ -619,37 +619,36 @@ _CLIMB_FEATURES = 250
 
 
 @numba.njit(cache=True, nogil=True)
-def _polish(density, train_xy, train_theta, train_w, alpha, scale, u0, v0, base, frac, obins,
-            ofrac, cache):  # pragma: no cover - compiled
-    """Hill-climb the exact score on a 1-pixel lattice, then a parabolic step."""
-    cu = np.floor(u0 + 0.5)
-    cv = np.floor(v0 + 0.5)
-    _prepare_pose(density, train_xy, train_theta, train_w, alpha, scale, cu, cv, base, frac,
-                  obins, ofrac)
+def _climb(density, train_w, base, frac, obins, ofrac, cache, vals, pu, pv, step, diagonal
+           ):  # pragma: no cover - compiled
+    """Hill-climb the shifted score from (pu, pv) to a peak of it, on the lattice.
+
+    Moves to the best of the 8 neighbours (``diagonal``) or of the 4, while
+    one beats the centre; ``vals`` is left holding the peak's neighbourhood
+    (-inf outside the polish radius) and ``cache`` the scores (``step`` as in
+    :func:`_shifted_score`) by shift. Returns the peak (pu, pv).
+    """
     r = _POLISH_RADIUS
-    cache[:, :] = np.nan
-    vals = np.empty((3, 3))
-    pu = 0
-    pv = 0
-    # The climb compares shifts on a subset of the features; the peak's
-    # neighbourhood is then scored on all of them.
-    step = max(1, train_w.shape[0] // _CLIMB_FEATURES)
     for _ in range(4 * r):
-        for dr in range(3):
-            for dc in range(3):
-                iu = pu + dc - 1
-                iv = pv + dr - 1
-                if abs(iu) > r or abs(iv) > r:
-                    vals[dr, dc] = -np.inf
-                    continue
-                val = cache[iv + r, iu + r]
-                if np.isnan(val):
-                    val = _shifted_score(density, train_w, base, frac, obins, ofrac, iu, iv, step)
-                    cache[iv + r, iu + r] = val
-                vals[dr, dc] = val
+        for k in range(9):
+            dr, dc = k // 3, k % 3
+            if not diagonal and dr != 1 and dc != 1:
+                continue
+            iu = pu + dc - 1
+            iv = pv + dr - 1
+            if abs(iu) > r or abs(iv) > r:
+                vals[dr, dc] = -np.inf
+                continue
+            val = cache[iv + r, iu + r]
+            if np.isnan(val):
+                val = _shifted_score(density, train_w, base, frac, obins, ofrac, iu, iv, step)
+                cache[iv + r, iu + r] = val
+            vals[dr, dc] = val
         best = 4
         bv = vals[1, 1]
         for k in range(9):
+            if not diagonal and k // 3 != 1 and k % 3 != 1:
+                continue
             if vals[k // 3, k % 3] > bv:
                 bv = vals[k // 3, k % 3]
                 best = k
@@ -657,33 +656,29 @@ def _polish(density, train_xy, train_theta, train_w, alpha, scale, u0, v0, base,
             break
         pu += best % 3 - 1
         pv += best // 3 - 1
+    return pu, pv
+
+
+@numba.njit(cache=True, nogil=True)
+def _polish(density, train_xy, train_theta, train_w, alpha, scale, u0, v0, base, frac, obins,
+            ofrac, cache):  # pragma: no cover - compiled
+    """Hill-climb the exact score on a 1-pixel lattice, then a parabolic step."""
+    cu = np.floor(u0 + 0.5)
+    cv = np.floor(v0 + 0.5)
+    _prepare_pose(density, train_xy, train_theta, train_w, alpha, scale, cu, cv, base, frac,
+                  obins, ofrac)
+    vals = np.empty((3, 3))
+    # The climb compares shifts on a subset of the features; the peak's
+    # neighbourhood is then scored on all of them.
+    step = max(1, train_w.shape[0] // _CLIMB_FEATURES)
+    cache[:, :] = np.nan
+    pu, pv = _climb(density, train_w, base, frac, obins, ofrac, cache, vals, 0, 0, step, True)
     if step > 1:
         # On all the features from there, climbing to the 4-neighbours, so
         # that the peak is one of the exact score.
         cache[:, :] = np.nan
-        for _ in range(4 * r):
-            for k in range(5):
-                dr, dc = (1, 0, 1, 1, 2)[k], (1, 1, 0, 2, 1)[k]
-                iu = pu + dc - 1
-                iv = pv + dr - 1
-                if abs(iu) > r or abs(iv) > r:
-                    vals[dr, dc] = -np.inf
-                    continue
-                val = cache[iv + r, iu + r]
-                if np.isnan(val):
-                    val = _shifted_score(density, train_w, base, frac, obins, ofrac, iu, iv)
-                    cache[iv + r, iu + r] = val
-                vals[dr, dc] = val
-            best = 4
-            bv = vals[1, 1]
-            for k in (1, 3, 5, 7):
-                if vals[k // 3, k % 3] > bv:
-                    bv = vals[k // 3, k % 3]
-                    best = k
-            if best == 4:
-                break
-            pu += best % 3 - 1
-            pv += best // 3 - 1
+        pu, pv = _climb(density, train_w, base, frac, obins, ofrac, cache, vals, pu, pv, 1,
+                        False)
     for k in (1, 3, 5, 7):
         if vals[k // 3, k % 3] == -np.inf:
             vals[k // 3, k % 3] = -1.0
