@@ -31,8 +31,8 @@ def test_viewpoint_grid_regular_step(fitted_estimator):
 def test_per_scale_maps_and_chance_correction(fitted_estimator, draw):
     from posevote.features.edges import extract_edges
     from posevote.inference import probe_poses
+    from posevote.inference.maps import scaled_features
     from posevote.inference.search import image_maps
-    from posevote.inference.voting import scaled_features
 
     est = fitted_estimator
     image = draw(np.radians(60))

@@ -1,22 +1,16 @@
-import cv2
 import numpy as np
 import pytest
 
 from posevote.features import EdgeFeatures
+from posevote.inference.maps import prepare_test
 from posevote.inference.voting import (
     _prepare_pose,
     _shifted_score,
     accumulate_votes,
     accumulate_votes_reference,
-    blur_taps,
-    blurred_points,
     gather_score,
     gather_score_reference,
-    merge_voters,
-    prepare_test,
-    restrict_maps,
     search_translations,
-    smooth,
 )
 
 
@@ -121,7 +115,7 @@ def test_search_polishes_the_vote_peak_with_the_best_exact_score(scene):
 
 
 def test_density_options_and_chance(scene):
-    from posevote.inference.voting import scaled_features
+    from posevote.inference.maps import scaled_features
 
     *_, maps = scene
     assert maps.chance == pytest.approx(float(maps.density.mean()))
@@ -132,122 +126,3 @@ def test_density_options_and_chance(scene):
     assert capped.density.max() <= 0.5 + 1e-6
     half, shape = scaled_features(feats, (100, 120), 2.0)
     assert shape == (50, 60) and np.allclose(half.xy, feats.xy / 2.0)
-
-
-def test_chance_width_subtracts_the_local_chance_level():
-    # An isolated straight contour on the left, dense clutter of every
-    # orientation on the right.
-    rng = np.random.default_rng(11)
-    line = np.stack([np.full(40, 20.0), np.linspace(10, 90, 40)], axis=1)
-    clutter = rng.uniform((70, 10), (115, 90), (1500, 2))
-    feats = EdgeFeatures(xy=np.vstack([line, clutter]),
-                         theta=np.concatenate([np.full(40, np.pi / 2),
-                                               rng.uniform(0, np.pi, 1500)]))
-    kw = {"position_sigma": 2.0, "orientation_kappa": 8.0, "density_cap": 0.6}
-    raw = prepare_test(feats, (100, 120), **kw)
-    local = prepare_test(feats, (100, 120), chance_width=8.0, **kw)
-    on_line = (slice(None), slice(30, 70), 20)
-    in_clutter = (slice(None), slice(30, 70), slice(85, 100))
-    # The contour keeps most of its score; the clutter's falls to about nothing.
-    assert local.density[on_line].max() > 0.8 * raw.density[on_line].max()
-    assert raw.density[in_clutter].mean() > 0.3
-    assert abs(local.density[in_clutter].mean()) < 0.05
-    assert np.all(local.density <= raw.density + 1e-6)
-
-
-def test_restrict_maps_keeps_the_window_only():
-    # Features only at a few orientations, so that the last orientation bins
-    # are empty (the bin bookkeeping must cope).
-    rng = np.random.default_rng(5)
-    xy = rng.uniform(0, 120, (80, 2))
-    theta = rng.choice([0.1, 0.5, 1.0], 80)
-    feats = EdgeFeatures(xy=xy, theta=theta)
-    maps = prepare_test(feats, (120, 120), position_sigma=2.0, orientation_kappa=8.0)
-    lo, hi = np.array([30.0, 40.0]), np.array([80.0, 90.0])
-    sub = restrict_maps(maps, lo, hi)
-    inside = np.all((xy >= lo) & (xy <= hi), axis=1)
-    alone = prepare_test(feats.select(inside), (120, 120), position_sigma=2.0,
-                         orientation_kappa=8.0)
-    np.testing.assert_array_equal(sub.bin_start, alone.bin_start)
-    np.testing.assert_allclose(np.sort(sub.xy, axis=0), np.sort(alone.xy, axis=0))
-    assert not sub.density[:, :40, :].any() and not sub.density[:, :, 82:].any()
-    # Away from the window's border the masked density is the one prepared anew.
-    np.testing.assert_allclose(sub.density[:, 50:80, 40:70], alone.density[:, 50:80, 40:70],
-                               atol=1e-3)
-    assert 0 < sub.chance < maps.chance
-
-
-def _gaussian_sum(xy, shape, sigma):
-    rows, cols = np.mgrid[0:shape[0], 0:shape[1]]
-    return sum(np.exp(-((cols - u) ** 2 + (rows - v) ** 2) / (2 * sigma**2)) / (2 * np.pi * sigma**2)
-               for u, v in xy)
-
-
-@pytest.mark.parametrize("sigma", [2.0, 6.0, 10.9, 16.0])
-def test_blurred_points_is_a_sum_of_gaussians(sigma):
-    # Narrow kernels round the points to pixels (half a pixel off moves a
-    # 2-px kernel by a fifth of its peak); wide ones go through the coarse
-    # grid, within 3%.
-    rng = np.random.default_rng(2)
-    xy = rng.uniform((40, 40), (160, 110), (6, 2))
-    got = blurred_points(xy, np.ones(len(xy)), (150, 200), sigma)
-    want = _gaussian_sum(xy, (150, 200), sigma)
-    assert got.dtype == np.float32 and got.shape == (150, 200)
-    tolerance = 0.25 if sigma < 6 else 0.03
-    assert np.abs(got - want).max() < tolerance * want.max()
-    # The mass stays (nothing near the border is lost).
-    assert got.sum() == pytest.approx(len(xy), rel=1e-3)
-
-
-@pytest.mark.parametrize("border", [cv2.BORDER_CONSTANT, cv2.BORDER_REFLECT])
-def test_smooth_matches_gaussian_blur_on_a_smooth_plane(border):
-    rng = np.random.default_rng(4)
-    plane = cv2.GaussianBlur(rng.random((90, 130)).astype(np.float32), (0, 0), 4.0)
-    for sigma in (2.0, 12.0, 30.0):
-        want = cv2.GaussianBlur(plane, (0, 0), sigma, borderType=border)
-        got = smooth(plane, sigma, border)
-        assert got.shape == plane.shape
-        # Away from the border, where the coarse grid's padding differs.
-        inner = (slice(10, -10), slice(10, -10))
-        assert np.abs(got - want)[inner].max() < 0.02 * np.abs(want).max()
-
-
-def test_merged_voters_keep_the_votes():
-    rng = np.random.default_rng(6)
-    xy = np.vstack([np.stack([np.linspace(10, 90, 60), np.full(60, 40.0)], 1),
-                    rng.uniform(0, 100, (200, 2))])
-    theta = np.concatenate([np.full(60, 0.05), rng.uniform(0, np.pi, 200)])
-    feats = EdgeFeatures(xy=xy, theta=theta)
-    vxy, vtheta, vw, start = merge_voters(feats, np.ones(len(theta)), 16, 4.0)
-    # Fewer voters, the same total weight in every orientation bin, and
-    # each at the mean of what it merged.
-    assert len(vw) < len(theta) and vw.sum() == pytest.approx(len(theta))
-    bins = np.minimum((theta / np.pi * 16).astype(int), 15)
-    counts = np.bincount(bins, minlength=16)
-    np.testing.assert_allclose(np.add.reduceat(vw, start[:-1])[np.diff(start) > 0],
-                               counts[np.diff(start) > 0])
-    assert np.all(np.diff(np.repeat(np.arange(16), np.diff(start))) >= 0)
-    # The line's features merge three by three (4-px cells, 1.36 px apart)
-    # but where a clutter feature of its bin falls in the same cell.
-    line = np.flatnonzero(np.abs(vxy[:, 1] - 40.0) < 1e-9)
-    assert vw[line].sum() >= 50 and np.all(vw[line] >= 2)
-    assert np.all(np.abs(vtheta[line] - 0.05) < 1e-9)
-    # The smoothed votes of the merged voters are those of the features.
-    train_xy = np.stack([np.linspace(-30, 30, 25), np.zeros(25)], 1)
-    train_theta, train_w = np.full(25, 0.05), np.full(25, 1 / 25)
-    lut = np.where(np.arange(64) < 8, 1.0, 0.0)
-    taps = blur_taps(1.5)
-
-    def votes(points, angles, weight, bin_start):
-        acc = np.zeros((30, 30))
-        accumulate_votes(train_xy, train_theta, train_w, 0.0, 1.0, points, angles, weight,
-                         bin_start, lut, 1, 4.0, acc)
-        return cv2.sepFilter2D(acc, -1, taps, taps)
-
-    order = np.argsort(bins, kind="stable")
-    all_start = np.searchsorted(bins[order], np.arange(17))
-    full = votes(xy[order], theta[order], np.ones(len(theta)), all_start)
-    merged = votes(vxy, vtheta, vw, start)
-    assert np.unravel_index(full.argmax(), full.shape) == np.unravel_index(merged.argmax(),
-                                                                             merged.shape)
-    assert np.abs(full - merged).max() < 0.1 * full.max()

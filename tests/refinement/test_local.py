@@ -135,7 +135,8 @@ def test_rescale_anchor_finds_the_scale_in_object_units(synthetic_training, draw
 
 def test_compass_search_kernel_agrees_with_reference():
     from posevote.features import EdgeFeatures
-    from posevote.inference.voting import gather_score, prepare_test
+    from posevote.inference.maps import prepare_test
+    from posevote.inference.voting import gather_score
     from posevote.refinement.local import _compass_search, compass_search_reference
 
     rng = np.random.default_rng(8)

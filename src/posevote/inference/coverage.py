@@ -21,8 +21,9 @@ from numpy.typing import NDArray
 
 from posevote.features.edges import EdgeFeatures
 from posevote.geometry import rotate_points
+from posevote.inference.maps import TestMaps, prepare_test
 from posevote.inference.search import ProbeSet, SearchSetup, viewpoint_features
-from posevote.inference.voting import TestMaps, density_at, prepare_test
+from posevote.inference.voting import density_at
 from posevote.model.density import PoseModel
 from posevote.model.kernels import K1_CUTOFF, ORIENTATION_KAPPA
 

@@ -20,14 +20,8 @@ from numpy.typing import NDArray
 from posevote._options import Options
 from posevote.features.edges import EdgeFeatures
 from posevote.geometry import viewing_direction
-from posevote.inference.voting import (
-    MAX_MAP_BYTES,
-    TestMaps,
-    prepare_test,
-    scaled_features,
-    search_translations,
-    subsample_features,
-)
+from posevote.inference.maps import MAX_MAP_BYTES, TestMaps, prepare_test, scaled_features
+from posevote.inference.voting import search_translations, subsample_features
 from posevote.model.density import PoseModel, viewpoint_weights
 from posevote.model.kernels import K1_CUTOFF, ORIENTATION_KAPPA
 from posevote.model.morph import morphed_positions
@@ -84,7 +78,7 @@ class SearchOptions(Options):
         Score each probe by what it explains above the local chance level:
         the search's density less its mean over orientations around each
         place, blurred at ``CHANCE_WIDTH`` kernel widths
-        (:func:`posevote.inference.voting.prepare_test`; beyond the paper).
+        (:func:`posevote.inference.maps.prepare_test`; beyond the paper).
     density_cap : float or None, default None
         Saturate the search's test density at this value (a model feature
         is explained or not, however dense the edges around it); None: the
@@ -417,7 +411,7 @@ def probe_poses(
         kernel fixed in image pixels, the paper's K2), or one per scale,
         each prepared from the test features divided by that scale
         (position kernel fixed in object units; see
-        :func:`posevote.inference.voting.scaled_features`).
+        :func:`posevote.inference.maps.scaled_features`).
     azimuths, elevations : ndarray, shape (V,)
         Viewpoints to probe, radians.
     inplanes : ndarray, shape (A,)

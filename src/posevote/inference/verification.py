@@ -23,8 +23,8 @@ from numpy.typing import NDArray
 from posevote.features.appearance import box_descriptor
 from posevote.features.edges import EdgeFeatures
 from posevote.geometry import box_centre, viewing_direction
+from posevote.inference.maps import TestMaps, restrict_maps
 from posevote.inference.search import ProbeSet, SearchSetup, probe, probe_spacing
-from posevote.inference.voting import TestMaps, restrict_maps
 from posevote.model.appearance import REGRESSION_STEPS, AppearanceModel, AppearanceOptions, shift_box
 from posevote.model.density import PoseModel
 from posevote.results import Hypothesis

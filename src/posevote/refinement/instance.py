@@ -24,9 +24,9 @@ from numpy.typing import NDArray
 from posevote._options import Options
 from posevote.features.edges import EdgeFeatures
 from posevote.geometry import angular_error
+from posevote.inference.maps import TestMaps
 from posevote.inference.recognition import explained_fraction, recognition_margin
 from posevote.inference.search import SearchSetup, probe
-from posevote.inference.voting import TestMaps
 from posevote.model.density import PoseModel
 from posevote.model.kernels import K1_CUTOFF, ORIENTATION_KAPPA
 from posevote.refinement.fitting import FIT_RADIUS_STEPS, refine_mode

@@ -18,8 +18,9 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
+from posevote.inference.maps import TestMaps
 from posevote.inference.search import ProbeSet, SearchSetup, viewpoint_features
-from posevote.inference.voting import TestMaps, gather_score, gather_score_reference
+from posevote.inference.voting import gather_score, gather_score_reference
 from posevote.model.density import PoseModel
 from posevote.model.kernels import K1_CUTOFF
 from posevote.refinement.fitting import (
@@ -220,7 +221,7 @@ def rescale_anchor(probes: ProbeSet, viewpoint: int, model: PoseModel,
         Training pairs.
     scale_maps : sequence of TestMaps
         For every probed scale, the test features divided by it, tabulated
-        with the narrow kernel (:func:`posevote.inference.voting.scaled_features`).
+        with the narrow kernel (:func:`posevote.inference.maps.scaled_features`).
     viewpoint_kappa, use_weights, k1_cutoff
         As in :func:`polish_pose`.
 

@@ -1,0 +1,356 @@
+"""The test image prepared for the search: phi's maps (Eq. 2) and the voters.
+
+:func:`prepare_test` sorts the test features into voters (those of one
+orientation bin in one square merged, :func:`merge_voters`) and tabulates the
+test density phi at every pixel for evenly spaced orientations, the planes
+smoothed on a coarse grid when the kernel is wide (:func:`blurred_points`,
+:func:`smooth`). :func:`restrict_maps` keeps a window of them, and
+:func:`scaled_features` divides the features by a scale (one level of a
+pyramid). The kernels that read them are in :mod:`posevote.inference.voting`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from posevote.features.edges import EdgeFeatures
+from posevote.model.kernels import orientation_cutoff, orientation_kernel
+
+_LUT_SIZE = 1024  # orientation-kernel table over [0, pi/2]
+
+
+#: The most memory (bytes) the test maps of one search may take; a search
+#: past it is refused before anything is allocated.
+MAX_MAP_BYTES = 4 << 30
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class TestMaps:
+    """The test image's features, prepared for voting and scoring.
+
+    Attributes
+    ----------
+    xy, theta : ndarray
+        The test features.
+    vote_xy, vote_theta, vote_weight : ndarray
+        The voters, sorted by orientation bin: the test features of one
+        orientation bin in one vote cell merged into one, at their mean
+        position and orientation, weighted by their number (the votes'
+        density is that of the features, at a fraction of the pairs).
+    bin_start : ndarray of int, shape (n_vote_bins + 1,)
+        Start of each orientation bin in the voters.
+    density : ndarray, shape (n_density_bins, H, W), float32
+        Test density phi (Eq. 2, peak-1 kernels) at every pixel for
+        ``n_density_bins`` evenly spaced orientations.
+    lut : ndarray
+        Orientation kernel tabulated over ``[0, pi/2]``.
+    vote_radius : int
+        Orientation bins searched on each side when pairing features.
+    position_sigma : float
+        Position kernel width of ``density``, pixels.
+    chance : float
+        Mean of ``density`` over pixels and orientations: the expected score
+        of a model dropped at random on the image (its edges explain that
+        fraction by chance).
+    """
+
+    xy: NDArray[np.float64]
+    theta: NDArray[np.float64]
+    vote_xy: NDArray[np.float64]
+    vote_theta: NDArray[np.float64]
+    vote_weight: NDArray[np.float64]
+    bin_start: NDArray[np.int64]
+    density: NDArray[np.float32]
+    lut: NDArray[np.float64]
+    vote_radius: int
+    position_sigma: float
+    chance: float = 0.0
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """Image shape (H, W)."""
+        return int(self.density.shape[1]), int(self.density.shape[2])
+
+
+def prepare_test(features: EdgeFeatures, shape: tuple[int, int], *, position_sigma: float,
+                 orientation_kappa: float, edge_spacing: float = 2.0,
+                 density_cap: float | None = None, chance_width: float | None = None,
+                 vote_bins: int = 16, density_bins: int = 16, vote_cutoff: float = 0.2
+                 ) -> TestMaps:
+    """Sort the test features by orientation and tabulate phi (Eq. 2).
+
+    Parameters
+    ----------
+    features : EdgeFeatures
+        Test features, image pixels.
+    shape : (int, int)
+        Image shape (H, W).
+    position_sigma, orientation_kappa : float
+        Combined kernel widths.
+    edge_spacing : float, optional
+        Spacing of the test features along edges, pixels. The density is
+        divided by that of an isolated straight edge, so that a model
+        feature lying on a contour of the image scores about 1.
+    density_cap : float, optional
+        If given, phi is saturated at this value: a model feature is
+        explained by an image edge or not, however dense the edges around
+        it (beyond the paper; keeps textured clutter from outvoting
+        contours and biasing the scale towards small, dense fits).
+    chance_width : float, optional
+        If given, the local chance level is subtracted from phi: the mean
+        of phi over orientations, blurred at this width (pixels). A model
+        feature then scores what an edge explains beyond the edges around
+        it, so that a model dropped in dense clutter, or inside the object's
+        own texture, no longer scores its chance matches (beyond the paper;
+        phi may then be negative).
+    vote_bins : int, optional
+        Orientation bins used to find compatible pairs when voting.
+    density_bins : int, optional
+        Orientations at which phi is tabulated (linear interpolation between).
+    vote_cutoff : float, optional
+        Pairs whose orientation kernel is below this do not vote (they still
+        count in the exact score).
+
+    Returns
+    -------
+    TestMaps
+    """
+    h, w = shape
+    need = density_bins * h * w * 4
+    if need > MAX_MAP_BYTES:
+        raise ValueError(f"the test maps of a {w} x {h} image (scaled) take {need / 2**30:.1f} "
+                         f"GiB, over the limit of {MAX_MAP_BYTES / 2**30:.0f} GiB; downscale the "
+                         "image or narrow SearchOptions.scale_range")
+    weight = np.ones(len(features))
+    centres = (np.arange(density_bins) + 0.5) * np.pi / density_bins
+    # cv2 normalises its Gaussian to unit sum; peak-1 kernels need 2 pi s^2,
+    # and an isolated edge sampled every `edge_spacing` pixels then sums to
+    # sqrt(2 pi) sigma / spacing, which is brought to 1.
+    gain = np.sqrt(2.0 * np.pi) * position_sigma * edge_spacing
+    density = np.empty((density_bins, h, w), dtype=np.float32)
+    for b, c in enumerate(centres):
+        strength = weight * orientation_kernel(features.theta - c, orientation_kappa)
+        density[b] = np.float32(gain) * blurred_points(features.xy, strength, shape,
+                                                       position_sigma)
+    if density_cap is not None:
+        np.minimum(density, np.float32(density_cap), out=density)
+    if chance_width is not None:
+        # Reflected at the border, so that the image's edge is not a clearing.
+        density -= smooth(density.mean(axis=0), chance_width, cv2.BORDER_REFLECT)[None]
+    lut = orientation_kernel(np.linspace(0.0, np.pi / 2, _LUT_SIZE), orientation_kappa)
+    cut = orientation_cutoff(orientation_kappa, vote_cutoff)
+    radius = int(np.ceil(cut / (np.pi / vote_bins)))
+    vote_xy, vote_theta, vote_weight, bin_start = merge_voters(
+        features, weight, vote_bins, VOTER_CELLS * vote_cell(position_sigma))
+    return TestMaps(xy=features.xy.copy(), theta=features.theta.copy(), vote_xy=vote_xy,
+                    vote_theta=vote_theta, vote_weight=vote_weight, bin_start=bin_start,
+                    density=density, lut=np.where(lut >= vote_cutoff, lut, 0.0),
+                    vote_radius=min(radius, vote_bins // 2), position_sigma=float(position_sigma),
+                    chance=float(density.mean(dtype=np.float64)))
+
+
+#: Smoothing runs on a grid coarse enough that the kernel still spans this
+#: many of its cells, and is interpolated back (bicubic): a wide kernel then
+#: costs a few cells' taps instead of its whole width in pixels.
+MIN_SMOOTH_CELLS = 3.0
+
+
+def _coarse_grid(sigma: float, shape: tuple[int, int]) -> tuple[int, int, int]:
+    """Block size ``k`` of the smoothing grid for width ``sigma``, and its shape."""
+    k = max(1, int(sigma / MIN_SMOOTH_CELLS))
+    return k, -(-shape[0] // k), -(-shape[1] // k)
+
+
+def _refine(coarse: NDArray[np.float32], k: int, shape: tuple[int, int]) -> NDArray[np.float32]:
+    """A coarse grid interpolated back to the pixels (block ``i`` at pixel ``k i + (k - 1) / 2``)."""
+    hs, ws = coarse.shape
+    fine = cv2.resize(coarse, (ws * k, hs * k), interpolation=cv2.INTER_CUBIC)
+    return np.asarray(fine[:shape[0], :shape[1]])
+
+
+def blurred_points(xy: NDArray[np.float64], values: NDArray[np.float64], shape: tuple[int, int],
+                   sigma: float) -> NDArray[np.float32]:
+    """Points of mass ``values`` at ``xy`` blurred by a unit-sum Gaussian of width ``sigma``.
+
+    Narrow kernels (``sigma < 2 MIN_SMOOTH_CELLS``) blur the points rounded
+    to their pixels. Wider ones splat the points bilinearly on a grid of
+    ``k x k`` blocks (which keeps their centroid), blur at ``sigma / k`` and
+    interpolate back: the cost of a few taps instead of ``6 sigma``, within
+    about 2% of the exact sum of Gaussians where rounding to the pixels errs
+    by 3-5%. Outside the image the plane is 0.
+
+    Parameters
+    ----------
+    xy : ndarray, shape (N, 2)
+        Point positions ``(u, v)``, pixels.
+    values : ndarray, shape (N,)
+    shape : (int, int)
+        Plane shape (H, W).
+    sigma : float
+        Kernel width, pixels.
+
+    Returns
+    -------
+    ndarray, shape (H, W), float32
+    """
+    h, w = shape
+    k, hs, ws = _coarse_grid(sigma, shape)
+    if k == 1:
+        cols = np.clip(np.rint(xy[:, 0]).astype(np.int64), 0, w - 1)
+        rows = np.clip(np.rint(xy[:, 1]).astype(np.int64), 0, h - 1)
+        plane = np.bincount(rows * w + cols, weights=values, minlength=h * w)
+        return np.asarray(cv2.GaussianBlur(plane.astype(np.float32).reshape(h, w), (0, 0), sigma,
+                                           borderType=cv2.BORDER_CONSTANT))
+    gx = np.clip((xy[:, 0] + 0.5) / k - 0.5, 0.0, ws - 1.0)
+    gy = np.clip((xy[:, 1] + 0.5) / k - 0.5, 0.0, hs - 1.0)
+    c0 = np.minimum(gx.astype(np.int64), max(ws - 2, 0))
+    r0 = np.minimum(gy.astype(np.int64), max(hs - 2, 0))
+    fx, fy = gx - c0, gy - r0
+    c1, r1 = np.minimum(c0 + 1, ws - 1), np.minimum(r0 + 1, hs - 1)
+    # Each block holds k^2 pixels' mass: its blurred value is k^2 the pixels'.
+    v = values / (k * k)
+    index = np.concatenate([r0 * ws + c0, r0 * ws + c1, r1 * ws + c0, r1 * ws + c1])
+    mass = np.concatenate([v * (1 - fx) * (1 - fy), v * fx * (1 - fy), v * (1 - fx) * fy,
+                           v * fx * fy])
+    splat = np.bincount(index, weights=mass, minlength=hs * ws).astype(np.float32)
+    # The splat spreads a point by k^2 / 6 (px^2) on average: blurred that much less.
+    coarse = np.asarray(cv2.GaussianBlur(splat.reshape(hs, ws), (0, 0),
+                                         np.sqrt(sigma**2 - k * k / 6.0) / k,
+                                         borderType=cv2.BORDER_CONSTANT), dtype=np.float32)
+    return _refine(coarse, k, shape)
+
+
+def smooth(plane: NDArray[np.float32], sigma: float, border: int) -> NDArray[np.float32]:
+    """Gaussian blur of a smooth ``plane`` at width ``sigma``, on a coarser grid when it allows.
+
+    The plane is averaged over ``k x k`` blocks (``k`` as
+    :func:`blurred_points` chooses it), blurred at ``sigma / k`` and
+    interpolated back; the averaging moves detail by up to ``k / 2``
+    pixels, which a plane already smooth at that scale does not have.
+
+    Parameters
+    ----------
+    plane : ndarray, shape (H, W), float32
+    sigma : float
+        Kernel width, pixels.
+    border : int
+        OpenCV border type (``cv2.BORDER_CONSTANT`` or ``cv2.BORDER_REFLECT``).
+
+    Returns
+    -------
+    ndarray, shape (H, W), float32
+    """
+    k, hs, ws = _coarse_grid(sigma, plane.shape)
+    if k == 1:
+        return np.asarray(cv2.GaussianBlur(plane, (0, 0), sigma, borderType=border))
+    h, w = plane.shape
+    padded = cv2.copyMakeBorder(plane, 0, hs * k - h, 0, ws * k - w, border, value=0.0)
+    coarse = cv2.resize(padded, (ws, hs), interpolation=cv2.INTER_AREA)
+    blurred = np.asarray(cv2.GaussianBlur(coarse, (0, 0), sigma / k, borderType=border),
+                         dtype=np.float32)
+    return _refine(blurred, k, plane.shape)
+
+
+#: The test features merged into one voter lie in a square of this many vote cells.
+VOTER_CELLS = 2.0
+
+
+def vote_cell(position_sigma: float) -> float:
+    """The vote grid's cell for maps of kernel width ``position_sigma``: two-thirds of it, >= 1.5 px.
+
+    Votes are smoothed at ``position_sigma`` (1.5 cells), so that the grid
+    resolves their peaks without a cell per pixel.
+    """
+    return max(1.5, position_sigma / 1.5)
+
+
+def merge_voters(features: EdgeFeatures, weight: NDArray[np.float64], n_bins: int, cell: float
+                 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64],
+                            NDArray[np.int64]]:
+    """The features of each orientation bin and ``cell``-sized square merged into one voter.
+
+    A voter stands at its features' weighted mean position and orientation,
+    with their total weight; its bilinear vote, smoothed over 1.5 cells, is
+    theirs but for the spread inside one cell.
+
+    Returns
+    -------
+    xy, theta, weight : ndarray
+        The voters, sorted by bin.
+    bin_start : ndarray of int, shape (n_bins + 1,)
+        Start of each bin in them.
+    """
+    if len(features) == 0:
+        return (np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.zeros(n_bins + 1, dtype=np.int64))
+    bins = np.minimum((features.theta / np.pi * n_bins).astype(np.int64), n_bins - 1)
+    cells = np.floor(features.xy / cell).astype(np.int64)
+    cells -= cells.min(axis=0)
+    nx, ny = int(cells[:, 0].max()) + 1, int(cells[:, 1].max()) + 1
+    key = (bins * ny + cells[:, 1]) * nx + cells[:, 0]
+    unique, group = np.unique(key, return_inverse=True)
+    total = np.bincount(group, weights=weight).astype(np.float64)
+    safe = np.where(total > 0, total, 1.0)
+    xy = np.stack([np.bincount(group, weights=weight * features.xy[:, k]) / safe
+                   for k in range(2)], axis=1)
+    theta = np.bincount(group, weights=weight * features.theta) / safe
+    bin_start = np.searchsorted(unique // (nx * ny), np.arange(n_bins + 1)).astype(np.int64)
+    return xy, theta, total, bin_start
+
+
+def restrict_maps(maps: TestMaps, lo: NDArray[np.float64], hi: NDArray[np.float64]
+                  ) -> TestMaps:
+    """The maps of the test features inside the rectangle ``lo``-``hi`` only.
+
+    Features outside are dropped and the density outside is set to 0, so
+    that the search finds the object inside the rectangle (what preparing
+    the maps again from those features would give, but for the kernel's
+    spill across the border, at the cost of a mask). The chance level is
+    that of the restricted density.
+
+    Parameters
+    ----------
+    maps : TestMaps
+        Maps of the whole image.
+    lo, hi : ndarray, shape (2,)
+        Corners ``(u, v)`` of the rectangle, in the maps' pixels.
+
+    Returns
+    -------
+    TestMaps
+    """
+    inside = np.all((maps.xy >= lo) & (maps.xy <= hi), axis=1)
+    voting = np.all((maps.vote_xy >= lo) & (maps.vote_xy <= hi), axis=1)
+    n_bins = len(maps.bin_start) - 1
+    bins = np.repeat(np.arange(n_bins), np.diff(maps.bin_start))
+    counts = np.bincount(bins[voting], minlength=n_bins)
+    bin_start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+    h, w = maps.shape
+    c0, r0 = (max(int(np.floor(x)), 0) for x in lo)
+    c1, r1 = min(int(np.ceil(hi[0])) + 1, w), min(int(np.ceil(hi[1])) + 1, h)
+    # Zeroed pages from the system (calloc): those outside the window are never filled.
+    density = np.zeros(maps.density.shape, dtype=maps.density.dtype)
+    if c1 > c0 and r1 > r0:
+        density[:, r0:r1, c0:c1] = maps.density[:, r0:r1, c0:c1]
+    return TestMaps(xy=maps.xy[inside], theta=maps.theta[inside], vote_xy=maps.vote_xy[voting],
+                    vote_theta=maps.vote_theta[voting], vote_weight=maps.vote_weight[voting],
+                    bin_start=bin_start, density=density, lut=maps.lut,
+                    vote_radius=maps.vote_radius, position_sigma=maps.position_sigma,
+                    chance=float(density.mean(dtype=np.float64)))
+
+
+def scaled_features(features: EdgeFeatures, shape: tuple[int, int], scale: float
+                    ) -> tuple[EdgeFeatures, tuple[int, int]]:
+    """Test features and image shape divided by ``scale`` (one level of a pyramid).
+
+    Searching the model at scale 1 in these features is searching it at
+    ``scale`` in the image, with every kernel width multiplied by ``scale``:
+    the position kernel is then fixed in object units, so that small scales
+    do not enjoy a wider relative tolerance than large ones.
+    """
+    h, w = shape
+    out_shape = (max(1, int(np.ceil(h / scale))), max(1, int(np.ceil(w / scale))))
+    return EdgeFeatures(xy=features.xy / scale, theta=features.theta), out_shape
