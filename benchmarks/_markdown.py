@@ -21,3 +21,11 @@ def write_markdown(path: str | Path, script: str, argv: list[str] | None, text: 
     command = shlex.join(["python", f"benchmarks/{Path(script).name}", *args])
     body = f"```\n$ {command}\n{text}```\n" if fenced else f"```\n$ {command}\n```\n\n{text}"
     atomic_write_text(path, body)
+
+
+def emit(text: str, markdown: str | None, script: str, argv: list[str] | None) -> int:
+    """Print a benchmark's report and, if ``markdown`` names a file, write it there too; 0."""
+    print(text, end="")
+    if markdown:
+        write_markdown(markdown, script, argv, text)
+    return 0

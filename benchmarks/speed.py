@@ -41,7 +41,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
-from _markdown import write_markdown  # noqa: E402
+from _markdown import emit  # noqa: E402
 
 from posevote import PoseEstimator  # noqa: E402
 from posevote.data import read_coil, read_epfl  # noqa: E402
@@ -141,10 +141,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"LINE-2D (OpenCV {line2d['opencv']}, {line2d['templates']} templates) "
                   f"{l2d:.3f} s per frame on the same frames; posevote / LINE-2D = "
                   f"{epfl_s / l2d:.2f} (target <= 0.33)")
-    print(report.getvalue(), end="")
-    if args.markdown:
-        write_markdown(args.markdown, __file__, argv, report.getvalue())
-    return 0
+    return emit(report.getvalue(), args.markdown, __file__, argv)
 
 
 if __name__ == "__main__":

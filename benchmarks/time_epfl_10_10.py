@@ -28,7 +28,7 @@ from pathlib import Path
 
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
-from _markdown import write_markdown  # noqa: E402
+from _markdown import emit  # noqa: E402
 
 from posevote.data import read_epfl  # noqa: E402
 from posevote.evaluation.protocols import (  # noqa: E402
@@ -90,10 +90,7 @@ def main(argv: list[str] | None = None) -> int:
         print("\n".join(lines))
         print(f"all rows: {total / 60:.1f} min projected for {PROTOCOL_TEST_FRAMES} test frames "
               "(s/frame is per process)")
-    print(report.getvalue(), end="")
-    if args.markdown:
-        write_markdown(args.markdown, __file__, argv, report.getvalue())
-    return 0
+    return emit(report.getvalue(), args.markdown, __file__, argv)
 
 
 if __name__ == "__main__":
