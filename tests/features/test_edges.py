@@ -53,3 +53,18 @@ def test_normalize_features_round_trip():
     n = normalize_features(f, center=np.array([31.5, 31.5]), scale=2.0, inplane=0.3)
     assert np.abs(n.xy).max() < 10
     assert np.all((n.theta >= 0) & (n.theta < np.pi))
+
+
+def test_a_mask_keeps_the_whole_images_edges_inside_it():
+    # Textured, so that edges run across the mask's border; one point per pixel.
+    rng = np.random.default_rng(3)
+    img = np.clip(square(96, 20, 70) * 0.6 + rng.random((96, 96)) * 0.4, 0, 1)
+    whole = detect_edges(img, spacing=0.5)
+    mask = box_mask(img.shape, np.array([30.0, 25.0, 40.0, 50.0]))
+    part = detect_edges(img, spacing=0.5, mask=mask)
+    inside = mask[whole.xy[:, 1].astype(int), whole.xy[:, 0].astype(int)]
+    assert 0 < len(part) < len(whole)
+    np.testing.assert_array_equal(part.xy, whole.xy[inside])
+    # The orientations, smoothed only around the kept points, are the whole image's.
+    np.testing.assert_array_equal(part.theta, whole.theta[inside])
+    assert len(detect_edges(img, mask=np.zeros(img.shape, bool))) == 0

@@ -89,3 +89,21 @@ def test_threads_give_the_same_probes(fitted_estimator, draw):
     np.testing.assert_array_equal(three.box, one.box)
     with pytest.raises(ValueError, match="n_threads must be an integer >= 1"):
         probe_poses(est.model_, maps, n_threads=0, **kw)
+
+
+def test_the_search_features_of_a_viewpoint_are_kept_per_model(fitted_estimator):
+    from posevote.inference.search import _PROBE_CACHE, _probe_features, viewpoint_features
+    from posevote.inference.voting import subsample_features
+
+    est = fitted_estimator
+    model, kappa = est.model_, est.viewpoint_kappa_
+    kw = dict(viewpoint_kappa=kappa, use_weights=True, k1_cutoff=0.1)
+    first = _probe_features(model, 0.5, 0.0, max_features=7, **kw)
+    feats = viewpoint_features(model, 0.5, 0.0, **kw)
+    for got, want in zip(first, (*subsample_features(feats.xy, feats.theta, feats.weight, 7),
+                                 feats.box), strict=True):
+        np.testing.assert_array_equal(got, want)
+    assert _probe_features(model, 0.5, 0.0, max_features=7, **kw)[0] is first[0]
+    # Another budget or viewpoint is another entry.
+    assert len(_probe_features(model, 0.5, 0.0, max_features=None, **kw)[1]) > 7
+    assert len(_PROBE_CACHE[model]) >= 2

@@ -116,14 +116,16 @@ def as_gray_float(image: NDArray, *, name: str = "image", channels: str = "rgb"
         scaled = rgb.astype(np.float64)
     elif np.issubdtype(rgb.dtype, np.floating):
         scaled = rgb.astype(np.float64)
-        if not np.all(np.isfinite(scaled)):
-            raise ValueError(f"{name}: the image holds NaN or infinite values")
+        # NaN and infinity carry into the extremes: two passes check everything.
         low, high = float(scaled.min()), float(scaled.max())
+        if not (np.isfinite(low) and np.isfinite(high)):
+            raise ValueError(f"{name}: the image holds NaN or infinite values")
         if low < -_FLOAT_SLACK or high > 1.0 + _FLOAT_SLACK:
             hint = " (divide a 0..255 image by 255)" if high > 1.0 + _FLOAT_SLACK else ""
             raise ValueError(f"{name}: float pixels must lie in [0, 1], these span "
                              f"[{low:g}, {high:g}]{hint}")
-        scaled = np.clip(scaled, 0.0, 1.0)
+        if low < 0.0 or high > 1.0:
+            scaled = np.clip(scaled, 0.0, 1.0)
     else:
         raise TypeError(f"{name}: unsupported pixel type {rgb.dtype}; use uint8, uint16 or float")
     if scaled.ndim == 3:
@@ -132,11 +134,14 @@ def as_gray_float(image: NDArray, *, name: str = "image", channels: str = "rgb"
     return np.ascontiguousarray(scaled)
 
 
-def _check_file(path: Path, data: bytes) -> None:
+def _check_file(path: Path, data: bytes) -> str | None:
     """Refuse an image whose header is over the pixel limit, or that decodes with a warning.
 
     Pillow reads the header without decoding; formats it does not know are
-    left to OpenCV (their size is checked once decoded).
+    left to OpenCV (their size is checked once decoded). A JPEG is not
+    decoded here: libjpeg's warnings reach :func:`_decode`, and a cut one
+    does not decode there. Returns Pillow's name of the format (None if it
+    does not know it).
     """
     from PIL import Image, UnidentifiedImageError
 
@@ -148,9 +153,11 @@ def _check_file(path: Path, data: bytes) -> None:
             with Image.open(io.BytesIO(data)) as im:
                 width, height = im.size
                 _check_size(str(path), height, width)
-                im.load()
+                if im.format != "JPEG":
+                    im.load()
+                return im.format
         except UnidentifiedImageError:
-            return
+            return None
         except Image.DecompressionBombError as exc:
             raise ValueError(f"{path}: the image is over the pixel limit of "
                              f"{MAX_IMAGE_PIXELS:,} and Pillow's ({exc})") from None
@@ -231,8 +238,11 @@ def read_image(path: str | Path) -> NDArray[np.float64]:
         data = path.read_bytes()
     except OSError as exc:
         raise ValueError(f"{path}: cannot read the file ({exc.strerror or exc})") from None
-    _check_file(path, data)
+    known = _check_file(path, data)
     raw = _decode(path, data) if data else None
+    if raw is None and known is not None:
+        raise ValueError(f"{path}: the image file is damaged or truncated (its {known} data "
+                         "do not decode)")
     if raw is None:
         raise ValueError(f"{path}: cannot decode this file as an image (unreadable or not an image)")
     # OpenCV decodes colour as BGR(A).

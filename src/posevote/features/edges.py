@@ -161,14 +161,31 @@ def detect_edges(
     dy = np.clip(np.rint(gy * _GRADIENT_UNITS), -32767, 32767).astype(np.int16)
     edges = cv2.Canny(dx, dy, low_threshold * _GRADIENT_UNITS, high_threshold * _GRADIENT_UNITS,
                       L2gradient=True)
-    if mask is not None:
-        edges[~mask] = 0
-    rows, cols = np.nonzero(edges)
+    if mask is None:
+        rows, cols = np.nonzero(edges)
+    else:
+        # Read within the mask's bounding box only (row-major, as over the whole image).
+        inside_rows = np.flatnonzero(mask.any(axis=1))
+        inside_cols = np.flatnonzero(mask.any(axis=0))
+        if len(inside_rows) == 0:
+            return EdgeFeatures(xy=np.zeros((0, 2)), theta=np.zeros(0))
+        r0, r1 = int(inside_rows[0]), int(inside_rows[-1]) + 1
+        c0, c1 = int(inside_cols[0]), int(inside_cols[-1]) + 1
+        rows, cols = np.nonzero((edges[r0:r1, c0:c1] > 0) & mask[r0:r1, c0:c1])
+        rows, cols = rows + r0, cols + c0
     xy = np.stack([cols, rows], axis=1).astype(np.float64)
     keep = _thin_evenly(xy, spacing=spacing, max_points=max_points)
     rows, cols, xy = rows[keep], cols[keep], xy[keep]
     # The dominant gradient orientation from the smoothed structure tensor;
     # the tangent is perpendicular to it.
+    # Blurred only around the kept points (a training box is a fraction of
+    # its frame): past the blur's reach from the window's inner sides, the
+    # values are the whole image's.
+    if len(rows):
+        reach = int(np.ceil(4 * orientation_sigma)) + 2
+        r0, c0 = max(int(rows.min()) - reach, 0), max(int(cols.min()) - reach, 0)
+        r1, c1 = int(rows.max()) + reach + 1, int(cols.max()) + reach + 1
+        gx, gy, rows, cols = gx[r0:r1, c0:c1], gy[r0:r1, c0:c1], rows - r0, cols - c0
     jxx = cv2.GaussianBlur(gx * gx, (0, 0), orientation_sigma)
     jyy = cv2.GaussianBlur(gy * gy, (0, 0), orientation_sigma)
     jxy = cv2.GaussianBlur(gx * gy, (0, 0), orientation_sigma)

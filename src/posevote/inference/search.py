@@ -9,10 +9,13 @@ set of (pose, score) pairs approximating p(w) at discrete probes.
 
 from __future__ import annotations
 
+import threading
+import weakref
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from functools import cached_property
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -382,6 +385,40 @@ def viewpoint_features(model: PoseModel, azimuth: float, elevation: float, *,
                              box=np.average(model.view_box[views], axis=0, weights=k1[views]))
 
 
+# A model's search features by viewpoint: the grid's viewpoints recur in every
+# image, and collecting them is a tenth of a search.
+_PROBE_CACHE: weakref.WeakKeyDictionary[PoseModel, dict[tuple[Any, ...], tuple[
+    NDArray[np.float64], ...]]] = weakref.WeakKeyDictionary()
+_PROBE_CACHE_SIZE = 4096
+_PROBE_LOCK = threading.Lock()
+
+
+def _probe_features(model: PoseModel, azimuth: float, elevation: float, *,
+                    viewpoint_kappa: float, use_weights: bool, k1_cutoff: float,
+                    max_features: int | None) -> tuple[NDArray[np.float64], ...]:
+    """:func:`viewpoint_features` subsampled for the search: (xy, theta, weight, box).
+
+    Kept per model (at most ``_PROBE_CACHE_SIZE`` viewpoints); the arrays are
+    shared between searches and must not be modified.
+    """
+    key = (azimuth, elevation, float(viewpoint_kappa), bool(use_weights), float(k1_cutoff),
+           max_features)
+    with _PROBE_LOCK:
+        cache = _PROBE_CACHE.setdefault(model, {})
+        found = cache.get(key)
+    if found is not None:
+        return found
+    feats = viewpoint_features(model, azimuth, elevation, viewpoint_kappa=viewpoint_kappa,
+                               use_weights=use_weights, k1_cutoff=k1_cutoff)
+    # Subsampled once for all the viewpoint's scales.
+    made = (*subsample_features(feats.xy, feats.theta, feats.weight, max_features), feats.box)
+    with _PROBE_LOCK:
+        if len(cache) >= _PROBE_CACHE_SIZE:
+            cache.clear()
+        cache[key] = made
+    return made
+
+
 def probe_poses(
     model: PoseModel,
     maps: TestMaps | Sequence[TestMaps],
@@ -459,14 +496,11 @@ def probe_poses(
 
     def probe_view(v: int) -> None:
         """Probe viewpoint ``v``, writing its rows of ``box``, ``score`` and ``translation``."""
-        feats = viewpoint_features(model, azimuths[v], elevations[v],
-                                   viewpoint_kappa=viewpoint_kappa, use_weights=use_weights,
-                                   k1_cutoff=k1_cutoff)
-        box[v] = feats.box
-        if feats.weight.sum() <= 0:
+        xy, theta, weight, box[v] = _probe_features(
+            model, float(azimuths[v]), float(elevations[v]), viewpoint_kappa=viewpoint_kappa,
+            use_weights=use_weights, k1_cutoff=k1_cutoff, max_features=max_features)
+        if weight.sum() <= 0:
             return
-        # Subsampled once for all the viewpoint's scales.
-        xy, theta, weight = subsample_features(feats.xy, feats.theta, feats.weight, max_features)
         if isinstance(maps, TestMaps):
             score[v], translation[v] = search_translations(
                 maps, xy, theta, weight, inplanes=inplanes, scales=scales, cell=cell,

@@ -17,6 +17,8 @@ with. :func:`search_translations` drives them over a grid of ``w2``.
 
 from __future__ import annotations
 
+import functools
+
 import numba
 import numpy as np
 from numpy.typing import NDArray
@@ -38,6 +40,12 @@ def accumulate_votes(train_xy, train_theta, train_w, alpha, scale, test_xy, test
     n_bins = bin_start.shape[0] - 1
     bin_width = np.pi / n_bins
     lut_scale = (lut.shape[0] - 1) / (np.pi / 2.0)
+    # The orientation difference past which the table is 0: a bin wholly
+    # beyond it holds no pair with a vote.
+    last = lut.shape[0] - 1
+    while last >= 0 and lut[last] <= 0.0:
+        last -= 1
+    reach = (last + 0.5) / lut_scale + 1e-9
     gh, gw = acc.shape
     ca, sa = np.cos(alpha), np.sin(alpha)
     for i in range(0, train_xy.shape[0], stride):
@@ -50,6 +58,10 @@ def accumulate_votes(train_xy, train_theta, train_w, alpha, scale, test_xy, test
         th = th - np.pi * np.floor(th / np.pi)
         centre = int(th / bin_width)
         for db in range(-radius, radius + 1):
+            if db > 0 and (centre + db) * bin_width - th > reach:
+                continue
+            if db < 0 and th - (centre + db + 1) * bin_width > reach:
+                continue
             b = (centre + db) % n_bins
             for j in range(bin_start[b], bin_start[b + 1]):
                 d = abs(test_theta[j] - th)
@@ -203,8 +215,12 @@ def _blur(acc, tmp, taps):  # pragma: no cover - compiled
             acc[row, c] = total
 
 
+@functools.lru_cache(maxsize=64)
 def blur_taps(sigma_cells: float) -> NDArray[np.float64]:
-    """Normalised Gaussian taps (3 sigma) for smoothing the vote grid."""
+    """Normalised Gaussian taps (3 sigma) for smoothing the vote grid (shared: do not modify).
+
+    Cached: every search of an image asks for the same few widths.
+    """
     r = max(1, int(np.ceil(3.0 * sigma_cells)))
     x = np.arange(-r, r + 1, dtype=np.float64)
     taps = np.exp(-x * x / (2.0 * max(sigma_cells, 1e-3) ** 2))

@@ -14,6 +14,7 @@ around the training boxes (:func:`train_box_regression`). The test side is
 from __future__ import annotations
 
 from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -258,13 +259,13 @@ class AppearanceCollector:
         self.offsets: list[NDArray[np.float64]] = []
         self.azimuths: list[float] = []
 
-    def _describe(self, image: NDArray[np.float64], box: Sequence[float]
+    def _describe(self, image: NDArray[np.floating], box: Sequence[float]
                   ) -> NDArray[np.float32] | None:
         if self.window is not None:
             return box_descriptor(image, box, self.window)
         return crop_box(image, box).astype(np.float32)
 
-    def add(self, image: NDArray[np.float64], box: Sequence[float], azimuth: float) -> None:
+    def add(self, image: NDArray[np.floating], box: Sequence[float], azimuth: float) -> None:
         """Describe one training image's box, some background boxes and jittered boxes of it."""
         self.views.append(self._describe(image, box))
         self.backgrounds += [self._describe(image, b)
@@ -274,8 +275,12 @@ class AppearanceCollector:
             self.offsets.append(box_offsets(b, box))
             self.azimuths.append(azimuth)
 
-    def finish(self, sizes: NDArray[np.float64]) -> AppearanceModel:
-        """The appearance model, once every image was added (``sizes``: the boxes' w, h)."""
+    def finish(self, sizes: NDArray[np.float64], n_threads: int = 1) -> AppearanceModel:
+        """The appearance model, once every image was added (``sizes``: the boxes' w, h).
+
+        With ``n_threads`` > 1 the classifier is trained in a thread of its
+        own while the box regressions are fitted (the same model).
+        """
         window = self.window if self.window is not None else window_shape(sizes)
 
         def stack(items: list[NDArray[np.float32] | None]) -> NDArray[np.float32]:
@@ -287,14 +292,23 @@ class AppearanceCollector:
                     out[i] = item
             return out
 
-        views, negatives = stack(self.views), stack(self.backgrounds)
-        objectness = train_objectness(views[np.any(views != 0, axis=1)],
-                                      negatives[np.any(negatives != 0, axis=1)])
-        samples = stack(self.jittered)
-        ok = np.any(samples != 0, axis=1)
-        regressor = None
-        if ok.sum() >= 2:
-            regressor = train_box_regression(samples[ok], np.array(self.offsets)[ok],
-                                             np.array(self.azimuths)[ok])
+        views, background = stack(self.views), stack(self.backgrounds)
+        positives = views[np.any(views != 0, axis=1)]
+        negatives = background[np.any(background != 0, axis=1)]
+        pool = ThreadPoolExecutor(max_workers=1) if n_threads > 1 else None
+        # liblinear runs on one core and releases the GIL; the regressions use BLAS.
+        pending = None if pool is None else pool.submit(train_objectness, positives, negatives)
+        try:
+            samples = stack(self.jittered)
+            ok = np.any(samples != 0, axis=1)
+            regressor = None
+            if ok.sum() >= 2:
+                regressor = train_box_regression(samples[ok], np.array(self.offsets)[ok],
+                                                 np.array(self.azimuths)[ok])
+            objectness = train_objectness(positives, negatives) if pending is None \
+                else pending.result()
+        finally:
+            if pool is not None:
+                pool.shutdown(wait=True)
         return AppearanceModel(window=window, descriptors=views, objectness=objectness,
                                regressor=regressor)

@@ -213,7 +213,8 @@ def _extract(images: list[Any], poses: ArrayLike, boxes: ArrayLike | None,
     collector = AppearanceCollector(box_arr) if appearance else None
     crops = ViewCrops() if morph else None
 
-    def read(i: int) -> tuple[NDArray[np.float64], NDArray[np.float64], EdgeFeatures]:
+    def read(i: int) -> tuple[NDArray[np.float64], NDArray[np.floating], NDArray[np.float64],
+                              EdgeFeatures]:
         """Image ``i``, its box and its edges inside the box (and mask)."""
         image = images[i]
         label = str(image) if isinstance(image, (str, Path)) else f"images[{i}]"
@@ -230,13 +231,14 @@ def _extract(images: list[Any], poses: ArrayLike, boxes: ArrayLike | None,
         if len(f) == 0:
             raise ValueError(f"{label}: no edges found on the object; check the box/mask "
                              "or lower EdgeOptions.thresholds")
-        return img, box, f
+        # The descriptors read single-precision crops: converted once, in the thread.
+        return img, img.astype(np.float32) if appearance else img, box, f
 
     # Images are read in threads; what draws random boxes runs here, in order.
-    for i, (img, box, f) in enumerate(thread_map(read, range(k), n_threads)):
+    for i, (img, img32, box, f) in enumerate(thread_map(read, range(k), n_threads)):
         feats.append(f)
         if collector is not None:
-            collector.add(img, box.tolist(), float(pose_arr[i, 0]))
+            collector.add(img32, box.tolist(), float(pose_arr[i, 0]))
         if crops is not None:
             crops.add(img, box)
         centres[i] = box_centre(box)
@@ -279,7 +281,8 @@ def _pool(views: _Views, *, category: str, kernel: KernelOptions, prune: Pruning
     searched = full if prune is None else prune_model(
         full, prune, position_sigma=kernel.position_sigma, orientation_kappa=ORIENTATION_KAPPA)
     return TrainedModel(model=searched, full_model=full, viewpoint_kappa=kappa,
-                        appearance=None if collector is None else collector.finish(sizes),
+                        appearance=None if collector is None
+                        else collector.finish(sizes, n_threads),
                         pruning=None if prune is None else asdict(prune), object_height_m=height)
 
 
