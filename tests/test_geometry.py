@@ -111,3 +111,17 @@ def test_rotation_angle_is_the_geodesic_between_rotations():
     assert rotation_angle(a, a) == pytest.approx(0.0, abs=1e-6)
     assert rotation_angle(a, rotation_from_pose(0.3, 0.2, 0.8)) == pytest.approx(0.7, abs=1e-9)
     assert rotation_angle(a, rotation_from_pose(0.3 + np.pi, 0.2, 0.1)) > 2.0
+
+
+def test_box_iou_of_one_pair_of_tuples_is_the_arrays_bit_for_bit():
+    from posevote.geometry import box_iou
+
+    rng = np.random.default_rng(5)
+    for _ in range(200):
+        a, b = tuple(rng.uniform(-20, 60, 4)), tuple(rng.uniform(-20, 60, 4))
+        a, b = a[:2] + (abs(a[2]), abs(a[3])), b[:2] + (abs(b[2]), abs(b[3]))
+        assert box_iou(a, b) == box_iou(np.array(a), np.array(b))
+    assert box_iou((0, 0, 0, 0), (0, 0, 0, 0)) == 0.0
+    # Not finite: the arrays' answer.
+    assert box_iou((np.nan, 0, 1, 1), (0, 0, 1, 1)) == box_iou(np.array([np.nan, 0, 1, 1]),
+                                                               np.array([0, 0, 1, 1]))

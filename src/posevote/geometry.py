@@ -22,6 +22,8 @@ Conventions, stated once for the whole library:
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -220,6 +222,16 @@ def box_centre(box: ArrayLike) -> tuple[float, float]:
 
 def box_iou(box_a: ArrayLike, box_b: ArrayLike) -> NDArray[np.float64]:
     """Intersection over union of ``(x, y, w, h)`` boxes (broadcastable)."""
+    if isinstance(box_a, tuple) and isinstance(box_b, tuple) and len(box_a) == len(box_b) == 4:
+        # One pair, as loops ask: the same arithmetic on plain floats, without
+        # the arrays' overhead (a training image draws five of them).
+        ax, ay, aw, ah = (float(v) for v in box_a)
+        bx, by, bw, bh = (float(v) for v in box_b)
+        if all(math.isfinite(v) for v in (ax, ay, aw, ah, bx, by, bw, bh)):
+            inter = max(min(ax + aw, bx + bw) - max(ax, bx), 0.0) \
+                * max(min(ay + ah, by + bh) - max(ay, by), 0.0)
+            union = aw * ah + bw * bh - inter
+            return np.float64(inter / union if union > 0 else 0.0)
     a = np.asarray(box_a, dtype=np.float64)
     b = np.asarray(box_b, dtype=np.float64)
     x0 = np.maximum(a[..., 0], b[..., 0])
