@@ -386,7 +386,7 @@ def viewpoint_features(model: PoseModel, azimuth: float, elevation: float, *,
 
 
 # A model's search features by viewpoint: the grid's viewpoints recur in every
-# image, and collecting them is a tenth of a search.
+# image, and collecting them (1-2 ms) is a tenth of a viewpoint's searches.
 _PROBE_CACHE: weakref.WeakKeyDictionary[PoseModel, dict[tuple[Any, ...], tuple[
     NDArray[np.float64], ...]]] = weakref.WeakKeyDictionary()
 _PROBE_CACHE_SIZE = 4096
