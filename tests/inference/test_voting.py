@@ -11,6 +11,7 @@ from posevote.inference.voting import (
     gather_score,
     gather_score_reference,
     search_translations,
+    strongest_voters,
 )
 
 
@@ -91,14 +92,14 @@ def test_search_on_a_feature_subset(scene):
 
 
 def test_search_polishes_the_vote_peak_with_the_best_exact_score(scene):
-    # A decoy made of the voting features only (every second one, with
-    # max_voters=20 of 40), each three times over, outvotes the object, but
+    # A decoy made of the voting features only (the 20 heaviest of 40, with
+    # max_voters=20), each three times over, outvotes the object, but
     # with the density capped at one point's peak it explains only the
-    # voters' half of the weight. Ranking the vote peaks by their exact
+    # voters' share of the weight. Ranking the vote peaks by their exact
     # score finds the object; the top vote peak alone is the decoy.
     train_xy, train_theta, train_w, *_ = scene
     obj, decoy = np.array([45.0, 50.0]), np.array([125.0, 50.0])
-    voters = slice(0, None, 2)
+    voters = strongest_voters(train_w, 20)
     xy = np.vstack([train_xy + obj] + [train_xy[voters] + decoy] * 3)
     theta = np.concatenate([train_theta] + [train_theta[voters]] * 3)
     peak = 2.0 / (np.sqrt(2 * np.pi) * 2.0)
@@ -112,6 +113,14 @@ def test_search_polishes_the_vote_peak_with_the_best_exact_score(scene):
                                          **grid)
     assert np.linalg.norm(top[0, 0] - decoy) < 3.0   # on the decoy's capped plateau
     assert top_score[0, 0] < 0.8 * score[0, 0]
+
+
+def test_the_voters_are_the_heaviest_features_in_their_order():
+    w = np.array([0.1, 0.5, 0.2, 0.9, 0.05, 0.5])
+    assert strongest_voters(w, 3).tolist() == [1, 3, 5]
+    assert strongest_voters(w, 1).tolist() == [3]
+    assert strongest_voters(w, None).tolist() == strongest_voters(w, 6).tolist() == list(range(6))
+    assert strongest_voters(w, 10).tolist() == list(range(6))
 
 
 def test_density_options_and_chance(scene):

@@ -30,7 +30,7 @@ from posevote.model.kernels import K1_CUTOFF, ORIENTATION_KAPPA
 from posevote.model.morph import morphed_positions
 from posevote.results import Hypothesis
 
-#: Training features that vote per probe (an even subset; all count in the
+#: Training features that vote per probe (the heaviest; all count in the
 #: exact score): the vote only has to find the peak's neighbourhood.
 MAX_VOTERS = 100
 #: Vote peaks per probe whose exact score is computed; the best is polished.
@@ -466,7 +466,7 @@ def probe_poses(
     n_candidates : int, optional
         Vote peaks scored exactly per probe (the best is polished).
     max_voters : int or None, optional
-        Training features that vote per probe (an even subset; all count in
+        Training features that vote per probe (the heaviest; all count in
         the exact score).
     max_features : int or None, optional
         Training features that take part per probe at all (an even subset;

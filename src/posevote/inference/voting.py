@@ -29,13 +29,11 @@ from posevote.inference.maps import TestMaps, vote_cell
 
 @numba.njit(cache=True, nogil=True, fastmath=False)
 def accumulate_votes(train_xy, train_theta, train_w, alpha, scale, test_xy, test_theta, test_w,
-                     bin_start, lut, radius, cell, acc, stride=1):  # pragma: no cover - compiled
+                     bin_start, lut, radius, cell, acc):  # pragma: no cover - compiled
     """Add the translation votes of one pose into ``acc`` (grid of cell ``cell`` px).
 
     ``acc[r, c]`` collects votes for ``t = (c * cell, r * cell)``, splatted
-    bilinearly. Only every ``stride``-th training feature votes (with
-    ``stride`` times its weight), which keeps the vote density the same at
-    a fraction of the cost. Returns nothing; ``acc`` is updated in place.
+    bilinearly. Returns nothing; ``acc`` is updated in place.
     """
     n_bins = bin_start.shape[0] - 1
     bin_width = np.pi / n_bins
@@ -48,8 +46,8 @@ def accumulate_votes(train_xy, train_theta, train_w, alpha, scale, test_xy, test
     reach = (last + 0.5) / lut_scale + 1e-9
     gh, gw = acc.shape
     ca, sa = np.cos(alpha), np.sin(alpha)
-    for i in range(0, train_xy.shape[0], stride):
-        wi = train_w[i] * stride
+    for i in range(train_xy.shape[0]):
+        wi = train_w[i]
         if wi <= 0.0:
             continue
         qx = scale * (ca * train_xy[i, 0] - sa * train_xy[i, 1])
@@ -377,7 +375,7 @@ def _polish(density, train_xy, train_theta, train_w, alpha, scale, u0, v0, base,
 
 @numba.njit(cache=True, nogil=True)
 def _search_kernel(train_xy, train_theta, train_w, alphas, scales, test_xy, test_theta, test_w,
-                   bin_start, lut, radius, density, cell, taps, n_candidates, stride, out_score,
+                   bin_start, lut, radius, density, cell, taps, n_candidates, voters, out_score,
                    out_t):  # pragma: no cover - compiled
     h = density.shape[1]
     w = density.shape[2]
@@ -391,11 +389,14 @@ def _search_kernel(train_xy, train_theta, train_w, alphas, scales, test_xy, test
     obins = np.empty((m, 2), dtype=np.int64)
     ofrac = np.empty(m)
     cache = np.empty((2 * _POLISH_RADIUS + 1, 2 * _POLISH_RADIUS + 1))
+    voter_xy = train_xy[voters]
+    voter_theta = train_theta[voters]
+    voter_w = train_w[voters]
     for a in range(alphas.shape[0]):
         for s in range(scales.shape[0]):
             acc[:, :] = 0.0
-            accumulate_votes(train_xy, train_theta, train_w, alphas[a], scales[s], test_xy,
-                             test_theta, test_w, bin_start, lut, radius, cell, acc, stride)
+            accumulate_votes(voter_xy, voter_theta, voter_w, alphas[a], scales[s], test_xy,
+                             test_theta, test_w, bin_start, lut, radius, cell, acc)
             _blur(acc, tmp, taps)
             # The vote peaks are ranked by the exact score at their cell, and
             # only the best of them is polished (hill-climbing every peak
@@ -453,6 +454,20 @@ def subsample_features(xy: NDArray[np.float64], theta: NDArray[np.float64],
             np.ascontiguousarray(weight, dtype=np.float64))
 
 
+def strongest_voters(weight: NDArray[np.float64], max_voters: int | None) -> NDArray[np.int64]:
+    """Indices, ascending, of the ``max_voters`` largest weights (all when None or fewer).
+
+    The heaviest features carry most of the exact score, so their votes
+    peak where it does (an even stride through the features finds fewer
+    cars: docs/METHOD-NOTES.md, "Speed").
+    """
+    n = len(weight)
+    if max_voters is None or n <= max_voters:
+        return np.arange(n, dtype=np.int64)
+    top = np.argpartition(-weight, max_voters - 1)[:max_voters]
+    return np.sort(top).astype(np.int64)
+
+
 def search_translations(maps: TestMaps, train_xy: NDArray[np.float64],
                         train_theta: NDArray[np.float64], train_w: NDArray[np.float64], *,
                         inplanes: NDArray[np.float64], scales: NDArray[np.float64],
@@ -479,8 +494,8 @@ def search_translations(maps: TestMaps, train_xy: NDArray[np.float64],
         Vote peaks per step whose exact score is read at their vote cell;
         the best of them is polished (hill-climbed to the pixel).
     max_voters : int or None, optional
-        At most about this many training features vote (an even stride
-        through them); all of them count in the exact score.
+        At most this many training features vote: those of largest weight
+        (:func:`strongest_voters`); all of them count in the exact score.
     max_features : int or None, optional
         If given, at most about this many training features (an even stride
         through them, their weights scaled to the same total) take part at
@@ -502,11 +517,11 @@ def search_translations(maps: TestMaps, train_xy: NDArray[np.float64],
     taps = blur_taps(maps.position_sigma / cell)
     train_xy, train_theta, train_w = subsample_features(train_xy, train_theta, train_w,
                                                         max_features)
-    stride = 1 if max_voters is None else max(1, int(np.ceil(len(train_theta) / max_voters)))
+    voters = strongest_voters(train_w, max_voters)
     if len(train_theta) and len(maps.vote_theta):
         _search_kernel(train_xy, train_theta, train_w, np.asarray(inplanes, dtype=np.float64),
                        np.asarray(scales, dtype=np.float64), maps.vote_xy, maps.vote_theta,
                        maps.vote_weight, maps.bin_start, maps.lut, maps.vote_radius,
-                       maps.density, float(cell), taps, int(n_candidates), stride, out_score,
+                       maps.density, float(cell), taps, int(n_candidates), voters, out_score,
                        out_t)
     return out_score, out_t
