@@ -64,7 +64,7 @@ PRESETS: dict[str, Preset] = {p.name: p for p in (
         chosen_on="COIL-100, the 16 objects of the paper: views at 0, 40, ..., 320 deg "
                   "trained, the training views between them tested",
         script="benchmarks/tune_coil_cv.py",
-        measured="COIL instance protocol 1.81 / 3.45 deg median / mean "
+        measured="COIL instance protocol 1.82 / 3.24 deg median / mean "
                  "(docs/results/coil_instance.md); min_score by 5-fold cross-validation "
                  "over the 40 development objects: 91% of right-object views kept, 86% of "
                  "other objects' views and background crops rejected "
@@ -105,8 +105,8 @@ PRESETS: dict[str, Preset] = {p.name: p for p in (
         chosen_on="EPFL cars 1-10, the two-fold epfl-cv (cars 1-5 <-> 6-10); the search "
                   "re-checked on the five-fold epfl-cv (8 training cars per fold)",
         script="benchmarks/tune_epfl.py",
-        measured="five-fold epfl-cv every 4th frame 4.16 / 28.2 deg, 83.2% under 45 deg, "
-                 "11.4% flips, 94.9% found (docs/results/epfl-cv)",
+        measured="five-fold epfl-cv every 4th frame 4.01 / 25.7 deg, 84.8% under 45 deg, "
+                 "9.8% flips, 96.3% found (docs/results/epfl-cv)",
         params={"edges": EdgeOptions(max_train_features=150),
                 "kernel": KernelOptions(position_sigma=6.0, viewpoint_bandwidth_deg=5.0),
                 "search": _EPFL_SEARCH,
