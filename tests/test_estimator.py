@@ -92,6 +92,22 @@ def test_appearance_refine_takes_the_nearest_training_view(synthetic_training, d
             plain.set_params(appearance=AppearanceOptions(candidates=candidates)).estimate(img)
 
 
+def test_a_verification_that_finds_nothing_falls_back_to_the_polished_search(
+        synthetic_training, draw, monkeypatch):
+    import posevote.estimator
+
+    images, az, boxes = synthetic_training
+    est = PoseEstimator(appearance=AppearanceOptions(candidates=5, jitter=0.0))
+    est.fit(images, az, boxes=boxes)
+    img = draw(np.radians(110.0))
+    unverified = est.set_params(appearance__candidates=0).estimate(img)
+    # The first search is left unpolished for the verification; when that
+    # finds no candidate, the estimate is the polished search's.
+    monkeypatch.setattr(posevote.estimator, "verify", lambda *args, **kwargs: None)
+    fallen_back = est.set_params(appearance__candidates=5).estimate(img)
+    assert fallen_back.modes == unverified.modes and fallen_back.best is not None
+
+
 def test_blank_image_is_not_found(fitted_estimator):
     result = fitted_estimator.estimate(np.zeros((64, 64)))
     assert not result.found and result.best is None and result.modes == ()

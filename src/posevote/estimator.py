@@ -333,13 +333,20 @@ class PoseEstimator(GroupedParams):
         shape = (int(img.shape[0]), int(img.shape[1]))
         setup = self.setup()
         maps = search_maps(feats, shape, model, setup)
-        probes = rerank_by_coverage(probe(model, maps, setup), model, maps, setup)
+        # The verification only ranks the first search's probes and moves their
+        # boxes itself: they need no polish unless it finds nothing.
+        verifying = self.appearance is not None and bool(self.appearance.candidates)
+        probes = rerank_by_coverage(probe(model, maps, setup, polish=not verifying), model, maps,
+                                    setup)
         verified_box = None
-        if self.appearance is not None and self.appearance.candidates and probes.score.any():
+        located = None
+        if verifying and self.appearance is not None and probes.score.any():
             located = verify(probes, img, feats, maps, model, self._appearance_model(),
                              self.appearance, setup)
             if located is not None:
                 feats, maps, probes, verified_box = located
+        if verifying and located is None:
+            probes = rerank_by_coverage(probe(model, maps, setup), model, maps, setup)
         modes = find_modes(probes, max_modes=self.max_modes)
         hyps = [refine_mode(probes, v, fit=self.fitting, radius_steps=FIT_RADIUS_STEPS)
                 for v in modes]

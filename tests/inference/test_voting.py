@@ -115,6 +115,22 @@ def test_search_polishes_the_vote_peak_with_the_best_exact_score(scene):
     assert top_score[0, 0] < 0.8 * score[0, 0]
 
 
+def test_an_unpolished_search_keeps_the_exact_score_at_the_vote_cell(scene):
+    train_xy, train_theta, train_w, alpha, scale, t, maps = scene
+    grid = {"inplanes": np.array([0.0, alpha, 0.4]), "scales": np.array([1.0, scale]),
+            "cell": 2.5}
+    polished = search_translations(maps, train_xy, train_theta, train_w, **grid)
+    score, trans = search_translations(maps, train_xy, train_theta, train_w, polish=False, **grid)
+    assert np.unravel_index(np.argmax(score), score.shape) == (1, 1)
+    # On the vote lattice, within a cell of the peak, scored there exactly.
+    assert np.allclose(trans / 2.5, np.round(trans / 2.5))
+    assert np.all(np.abs(trans[1, 1] - t) <= 2.5)
+    assert score[1, 1] == pytest.approx(gather_score(maps.density, train_xy, train_theta, train_w,
+                                                     alpha, scale, *trans[1, 1]), rel=1e-9)
+    # The polish climbs from there to the peak.
+    assert 0.8 * polished[0][1, 1] < score[1, 1] <= polished[0][1, 1]
+
+
 def test_the_voters_are_the_heaviest_features_in_their_order():
     w = np.array([0.1, 0.5, 0.2, 0.9, 0.05, 0.5])
     assert strongest_voters(w, 3).tolist() == [1, 3, 5]

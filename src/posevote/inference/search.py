@@ -436,6 +436,7 @@ def probe_poses(
     max_features: int | None = None,
     progress: Callable[[int], None] | None = None,
     n_threads: int = 1,
+    polish: bool = True,
 ) -> ProbeSet:
     """Evaluate p(w) at every probe of the grid (Fig. 2).
 
@@ -477,6 +478,10 @@ def probe_poses(
         Viewpoints probed at once, each in a thread of its own (the search
         kernels release the GIL). Every viewpoint is computed on its own
         and written to its own rows, so the result does not depend on it.
+    polish : bool, optional
+        Polish each probe's translation to the score's peak (False: the
+        exact score at the best vote cell; see
+        :func:`posevote.inference.voting.search_translations`).
 
     Returns
     -------
@@ -504,12 +509,13 @@ def probe_poses(
         if isinstance(maps, TestMaps):
             score[v], translation[v] = search_translations(
                 maps, xy, theta, weight, inplanes=inplanes, scales=scales, cell=cell,
-                n_candidates=n_candidates, max_voters=max_voters)
+                n_candidates=n_candidates, max_voters=max_voters, polish=polish)
         else:
             for k, (scale_maps, factor) in enumerate(zip(per_scale, scales, strict=True)):
                 sc, tr = search_translations(
                     scale_maps, xy, theta, weight, inplanes=inplanes, scales=np.ones(1),
-                    cell=cell, n_candidates=n_candidates, max_voters=max_voters)
+                    cell=cell, n_candidates=n_candidates, max_voters=max_voters,
+                    polish=polish)
                 score[v, :, k], translation[v, :, k] = sc[:, 0], tr[:, 0] * factor
 
     if n_threads == 1 or n_v < 2:
@@ -530,7 +536,7 @@ def probe_poses(
 
 def probe(model: PoseModel, maps: TestMaps | list[TestMaps], setup: SearchSetup, *,
           near: Hypothesis | None = None, size: float = 1.0,
-          progress: Callable[[int], None] | None = None) -> ProbeSet:
+          progress: Callable[[int], None] | None = None, polish: bool = True) -> ProbeSet:
     """Probe p(w) on the grid of ``setup`` (Fig. 2).
 
     Parameters
@@ -546,6 +552,9 @@ def probe(model: PoseModel, maps: TestMaps | list[TestMaps], setup: SearchSetup,
         maps fix the grid, and then it is ignored.
     progress : callable, optional
         Called with 1 after each viewpoint.
+    polish : bool, optional
+        False leaves each probe at its best vote cell (a ranking for the
+        appearance verification, which moves the boxes itself).
 
     Returns
     -------
@@ -574,4 +583,4 @@ def probe(model: PoseModel, maps: TestMaps | list[TestMaps], setup: SearchSetup,
                        use_weights=setup.use_weights, k1_cutoff=K1_CUTOFF,
                        max_voters=MAX_VOTERS, max_features=opts.max_search_features,
                        n_candidates=VOTE_CANDIDATES,
-                       progress=progress, n_threads=setup.n_threads)
+                       progress=progress, n_threads=setup.n_threads, polish=polish)
