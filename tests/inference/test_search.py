@@ -93,16 +93,18 @@ def test_threads_give_the_same_probes(fitted_estimator, draw):
 
 def test_the_search_features_of_a_viewpoint_are_kept_per_model(fitted_estimator):
     from posevote.inference.search import _PROBE_CACHE, _probe_features, viewpoint_features
-    from posevote.inference.voting import subsample_features
+    from posevote.inference.voting import strongest_voters, subsample_features
 
     est = fitted_estimator
     model, kappa = est.model_, est.viewpoint_kappa_
-    kw = dict(viewpoint_kappa=kappa, use_weights=True, k1_cutoff=0.1)
+    kw = dict(viewpoint_kappa=kappa, use_weights=True, k1_cutoff=0.1, max_voters=3)
     first = _probe_features(model, 0.5, 0.0, max_features=7, **kw)
-    feats = viewpoint_features(model, 0.5, 0.0, **kw)
-    for got, want in zip(first, (*subsample_features(feats.xy, feats.theta, feats.weight, 7),
-                                 feats.box), strict=True):
+    feats = viewpoint_features(model, 0.5, 0.0, viewpoint_kappa=kappa, use_weights=True,
+                               k1_cutoff=0.1)
+    sub = subsample_features(feats.xy, feats.theta, feats.weight, 7)
+    for got, want in zip(first, (*sub, feats.box, strongest_voters(sub[2], 3)), strict=True):
         np.testing.assert_array_equal(got, want)
+    assert len(first[4]) == 3
     assert _probe_features(model, 0.5, 0.0, max_features=7, **kw)[0] is first[0]
     # Another budget or viewpoint is another entry.
     assert len(_probe_features(model, 0.5, 0.0, max_features=None, **kw)[1]) > 7

@@ -24,7 +24,7 @@ from posevote._options import Options
 from posevote.features.edges import EdgeFeatures
 from posevote.geometry import viewing_direction
 from posevote.inference.maps import MAX_MAP_BYTES, TestMaps, prepare_test, scaled_features
-from posevote.inference.voting import search_translations, subsample_features
+from posevote.inference.voting import search_translations, strongest_voters, subsample_features
 from posevote.model.density import PoseModel, viewpoint_weights
 from posevote.model.kernels import K1_CUTOFF, ORIENTATION_KAPPA
 from posevote.model.morph import morphed_positions
@@ -395,14 +395,15 @@ _PROBE_LOCK = threading.Lock()
 
 def _probe_features(model: PoseModel, azimuth: float, elevation: float, *,
                     viewpoint_kappa: float, use_weights: bool, k1_cutoff: float,
-                    max_features: int | None) -> tuple[NDArray[np.float64], ...]:
-    """:func:`viewpoint_features` subsampled for the search: (xy, theta, weight, box).
+                    max_features: int | None, max_voters: int | None
+                    ) -> tuple[NDArray[Any], ...]:
+    """:func:`viewpoint_features` subsampled for the search: (xy, theta, weight, box, voters).
 
     Kept per model (at most ``_PROBE_CACHE_SIZE`` viewpoints); the arrays are
     shared between searches and must not be modified.
     """
     key = (azimuth, elevation, float(viewpoint_kappa), bool(use_weights), float(k1_cutoff),
-           max_features)
+           max_features, max_voters)
     with _PROBE_LOCK:
         cache = _PROBE_CACHE.setdefault(model, {})
         found = cache.get(key)
@@ -411,7 +412,8 @@ def _probe_features(model: PoseModel, azimuth: float, elevation: float, *,
     feats = viewpoint_features(model, azimuth, elevation, viewpoint_kappa=viewpoint_kappa,
                                use_weights=use_weights, k1_cutoff=k1_cutoff)
     # Subsampled once for all the viewpoint's scales.
-    made = (*subsample_features(feats.xy, feats.theta, feats.weight, max_features), feats.box)
+    xy, theta, weight = subsample_features(feats.xy, feats.theta, feats.weight, max_features)
+    made = (xy, theta, weight, feats.box, strongest_voters(weight, max_voters))
     with _PROBE_LOCK:
         if len(cache) >= _PROBE_CACHE_SIZE:
             cache.clear()
@@ -501,21 +503,21 @@ def probe_poses(
 
     def probe_view(v: int) -> None:
         """Probe viewpoint ``v``, writing its rows of ``box``, ``score`` and ``translation``."""
-        xy, theta, weight, box[v] = _probe_features(
+        xy, theta, weight, box[v], voters = _probe_features(
             model, float(azimuths[v]), float(elevations[v]), viewpoint_kappa=viewpoint_kappa,
-            use_weights=use_weights, k1_cutoff=k1_cutoff, max_features=max_features)
+            use_weights=use_weights, k1_cutoff=k1_cutoff, max_features=max_features,
+            max_voters=max_voters)
         if weight.sum() <= 0:
             return
         if isinstance(maps, TestMaps):
             score[v], translation[v] = search_translations(
                 maps, xy, theta, weight, inplanes=inplanes, scales=scales, cell=cell,
-                n_candidates=n_candidates, max_voters=max_voters, polish=polish)
+                n_candidates=n_candidates, polish=polish, voters=voters)
         else:
             for k, (scale_maps, factor) in enumerate(zip(per_scale, scales, strict=True)):
                 sc, tr = search_translations(
                     scale_maps, xy, theta, weight, inplanes=inplanes, scales=np.ones(1),
-                    cell=cell, n_candidates=n_candidates, max_voters=max_voters,
-                    polish=polish)
+                    cell=cell, n_candidates=n_candidates, polish=polish, voters=voters)
                 score[v, :, k], translation[v, :, k] = sc[:, 0], tr[:, 0] * factor
 
     if n_threads == 1 or n_v < 2:

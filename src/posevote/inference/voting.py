@@ -473,7 +473,7 @@ def search_translations(maps: TestMaps, train_xy: NDArray[np.float64],
                         inplanes: NDArray[np.float64], scales: NDArray[np.float64],
                         cell: float | None = None, n_candidates: int = 3,
                         max_voters: int | None = 200, max_features: int | None = None,
-                        polish: bool = True
+                        polish: bool = True, voters: NDArray[np.int64] | None = None
                         ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Best translation and its score for every (in-plane angle, scale) step.
 
@@ -507,6 +507,9 @@ def search_translations(maps: TestMaps, train_xy: NDArray[np.float64],
         Hill-climb the best candidate to the pixel (the score's peak). False
         keeps the exact score at its vote cell, a cell's width from the
         peak at most: enough to rank probes, for a fifth of the cost.
+    voters : ndarray of int, optional
+        The voting features' indices, when the caller has them already:
+        ``strongest_voters(w, max_voters)`` of the (subsampled) weights.
 
     Returns
     -------
@@ -522,7 +525,8 @@ def search_translations(maps: TestMaps, train_xy: NDArray[np.float64],
     taps = blur_taps(maps.position_sigma / cell)
     train_xy, train_theta, train_w = subsample_features(train_xy, train_theta, train_w,
                                                         max_features)
-    voters = strongest_voters(train_w, max_voters)
+    if voters is None:
+        voters = strongest_voters(train_w, max_voters)
     if len(train_theta) and len(maps.vote_theta):
         _search_kernel(train_xy, train_theta, train_w, np.asarray(inplanes, dtype=np.float64),
                        np.asarray(scales, dtype=np.float64), maps.vote_xy, maps.vote_theta,
