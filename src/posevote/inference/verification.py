@@ -105,10 +105,8 @@ def verify_candidates(probes: ProbeSet, image: NDArray[np.float64],
     if objectness is not None and len(found) > shortlist:
         looks = np.array([float(d @ objectness[:-1]) + objectness[-1] for _, _, d in found])
         found = [found[i] for i in np.sort(np.argsort(-looks, kind="stable")[:shortlist])]
-    train_sq = np.einsum("ij,ij->i", descriptors, descriptors)
-    best: tuple[tuple[int, int, int], float, tuple[float, ...]] | None = None
-    # Candidates of one viewpoint share their training views: copied once.
-    near_views: dict[int, tuple[NDArray[np.float32], NDArray[np.float32]]] = {}
+    compared: list[tuple[tuple[int, int, int], NDArray[np.bool_], tuple[float, ...]]] = []
+    described = []
     for index, near, d in found:
         v, a, s = index
         box = tuple(float(b) for b in boxes[v, a, s])
@@ -117,13 +115,24 @@ def verify_candidates(probes: ProbeSet, image: NDArray[np.float64],
                                                  float(probes.azimuth[v]), window=window)
             if regressed is not None:
                 box, d = moved, regressed
-        if v not in near_views:
-            near_views[v] = descriptors[near], train_sq[near]
-        near_desc, near_sq = near_views[v]
-        sq = near_sq + float(d @ d) - 2.0 * (near_desc @ d)
-        dist = float(np.sqrt(max(float(sq.min()), 0.0)))
+        compared.append((index, near, box))
+        described.append(d)
+    # All candidates against all training views in one product: gathering each
+    # viewpoint's near views cost more than the products themselves.
+    d_all = np.array(described, dtype=np.float32)
+    sq_all = (np.einsum("ij,ij->i", descriptors, descriptors)[None, :]
+              + np.einsum("ij,ij->i", d_all, d_all)[:, None] - 2.0 * (d_all @ descriptors.T))
+    if objectness is not None and objectness_weight:
+        looks_all = d_all.astype(np.float64) @ objectness[:-1] + objectness[-1]
+    best: tuple[tuple[int, int, int], float, tuple[float, ...]] | None = None
+    for k, (index, near, box) in enumerate(compared):
+        # The nearest view by the product's expansion, its distance exactly
+        # (the expansion cancels in float32 near a match).
+        views = np.flatnonzero(near)
+        nearest = int(views[np.argmin(sq_all[k, views])])
+        dist = float(np.linalg.norm(d_all[k] - descriptors[nearest]))
         if objectness is not None and objectness_weight:
-            dist -= objectness_weight * (float(d @ objectness[:-1]) + objectness[-1])
+            dist -= objectness_weight * float(looks_all[k])
         if best is None or dist < best[1]:
             best = (index, dist, box)
     return best
