@@ -16,6 +16,7 @@ features it contains.
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 from numpy.typing import NDArray
 
@@ -73,21 +74,108 @@ def explained_fraction(test: EdgeFeatures, model: PoseModel, hypothesis: Hypothe
         + np.asarray(hypothesis.position)
     theta = np.mod(feats.theta + hypothesis.inplane, np.pi)
     strength = feats.weight / feats.weight.max()
-    # imported where used, so that a command-line start does not pay for it
-    from scipy.spatial import cKDTree
-
-    tree = cKDTree(xy)
     # Spacing of the model's points along its contours, in image pixels: a
     # test point on a contour then sums to about sqrt(2 pi) sigma / spacing.
-    spacing = float(np.median(tree.query(xy, k=2)[0][:, 1])) if len(xy) > 1 else 1.0
+    spacing = median_spacing(xy)
     gain = max(spacing, 1e-6) / (np.sqrt(2.0 * np.pi) * position_sigma)
-    pts, ths = test.xy[inside], test.theta[inside]
-    pairs = tree.sparse_distance_matrix(cKDTree(pts), 3.0 * position_sigma, output_type="ndarray")
-    i, j, dist = pairs["i"], pairs["j"], pairs["v"]
-    terms = (strength[i] * position_kernel(dist ** 2, position_sigma)
-             * orientation_kernel(theta[i] - ths[j], orientation_kappa))
-    total = np.bincount(j, weights=terms, minlength=len(pts))
+    total = explained_sums(xy, theta, strength, test.xy[inside], test.theta[inside],
+                           position_sigma, orientation_kappa)
     return float(np.mean(np.minimum(gain * total, 1.0)))
+
+
+@numba.njit(cache=True, nogil=True)
+def _nearest_distances(xy, order):  # pragma: no cover - compiled
+    """Each point's distance to its nearest other point; ``order`` sorts the points by x."""
+    n = xy.shape[0]
+    out = np.full(n, np.inf)
+    for k in range(n):
+        i = order[k]
+        best = np.inf
+        for step in (-1, 1):
+            m = k + step
+            while 0 <= m < n:
+                j = order[m]
+                dx = xy[j, 0] - xy[i, 0]
+                if dx * dx >= best:
+                    break
+                d = dx * dx + (xy[j, 1] - xy[i, 1]) ** 2
+                if d < best:
+                    best = d
+                m += step
+        out[i] = np.sqrt(best)
+    return out
+
+
+def median_spacing(xy: NDArray[np.float64]) -> float:
+    """Median distance from each point to its nearest other point (1 for fewer than two)."""
+    if len(xy) < 2:
+        return 1.0
+    xy = np.ascontiguousarray(xy, dtype=np.float64)
+    return float(np.median(_nearest_distances(xy, np.argsort(xy[:, 0], kind="stable"))))
+
+
+def median_spacing_reference(xy: NDArray[np.float64]) -> float:
+    """:func:`median_spacing` by a k-d tree (for tests)."""
+    from scipy.spatial import cKDTree
+
+    return float(np.median(cKDTree(xy).query(xy, k=2)[0][:, 1])) if len(xy) > 1 else 1.0
+
+
+@numba.njit(cache=True, nogil=True)
+def _explained_sums(xy, theta, strength, test_xy, test_theta, order, sigma, kappa
+                    ):  # pragma: no cover - compiled
+    reach = 3.0 * sigma
+    n = test_xy.shape[0]
+    sorted_x = np.empty(n)
+    for k in range(n):
+        sorted_x[k] = test_xy[order[k], 0]
+    total = np.zeros(n)
+    for i in range(xy.shape[0]):
+        k = np.searchsorted(sorted_x, xy[i, 0] - reach)
+        while k < n and sorted_x[k] <= xy[i, 0] + reach:
+            j = order[k]
+            dx = test_xy[j, 0] - xy[i, 0]
+            dy = test_xy[j, 1] - xy[i, 1]
+            d2 = dx * dx + dy * dy
+            if d2 <= reach * reach:
+                total[j] += (strength[i] * np.exp(-d2 / (2.0 * sigma * sigma))
+                             * np.exp(kappa * (np.cos(2.0 * (theta[i] - test_theta[j])) - 1.0)))
+            k += 1
+    return total
+
+
+def explained_sums(xy: NDArray[np.float64], theta: NDArray[np.float64],
+                   strength: NDArray[np.float64], test_xy: NDArray[np.float64],
+                   test_theta: NDArray[np.float64], sigma: float, kappa: float
+                   ) -> NDArray[np.float64]:
+    """For each test point, the model points' kernel sum within 3 sigma (Eq. 5's terms).
+
+    ``strength[i] * exp(-d^2 / 2 sigma^2) * exp(kappa (cos 2 dtheta - 1))``
+    summed over the model points ``i`` within ``3 sigma`` of the test point.
+    """
+    f64 = np.float64
+    test_xy = np.ascontiguousarray(test_xy, dtype=f64)
+    order = np.argsort(test_xy[:, 0], kind="stable") if len(test_xy) else np.zeros(0, np.int64)
+    return _explained_sums(np.ascontiguousarray(xy, dtype=f64),
+                           np.ascontiguousarray(theta, dtype=f64),
+                           np.ascontiguousarray(strength, dtype=f64), test_xy,
+                           np.ascontiguousarray(test_theta, dtype=f64), order, float(sigma),
+                           float(kappa))
+
+
+def explained_sums_reference(xy: NDArray[np.float64], theta: NDArray[np.float64],
+                             strength: NDArray[np.float64], test_xy: NDArray[np.float64],
+                             test_theta: NDArray[np.float64], sigma: float, kappa: float
+                             ) -> NDArray[np.float64]:
+    """:func:`explained_sums` by k-d trees and the kernels of :mod:`posevote.model.kernels`."""
+    from scipy.spatial import cKDTree
+
+    pairs = cKDTree(xy).sparse_distance_matrix(cKDTree(test_xy), 3.0 * sigma,
+                                               output_type="ndarray")
+    i, j, dist = pairs["i"], pairs["j"], pairs["v"]
+    terms = (strength[i] * position_kernel(dist ** 2, sigma)
+             * orientation_kernel(theta[i] - test_theta[j], kappa))
+    return np.bincount(j, weights=terms, minlength=len(test_xy))
 
 
 def recognition_margin(scores: NDArray[np.float64]) -> tuple[int, float]:
