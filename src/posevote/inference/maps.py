@@ -131,11 +131,10 @@ def prepare_test(features: EdgeFeatures, shape: tuple[int, int], *, position_sig
     # and an isolated edge sampled every `edge_spacing` pixels then sums to
     # sqrt(2 pi) sigma / spacing, which is brought to 1.
     gain = np.sqrt(2.0 * np.pi) * position_sigma * edge_spacing
-    density = np.empty((density_bins, h, w), dtype=np.float32)
-    for b, c in enumerate(centres):
-        strength = weight * orientation_kernel(features.theta - c, orientation_kappa)
-        density[b] = np.float32(gain) * blurred_points(features.xy, strength, shape,
-                                                       position_sigma)
+    strength = weight[None, :] * orientation_kernel(features.theta[None, :] - centres[:, None],
+                                                    orientation_kappa)
+    density = blurred_points(features.xy, strength, shape, position_sigma)
+    density *= np.float32(gain)
     if density_cap is not None:
         np.minimum(density, np.float32(density_cap), out=density)
     if chance_width is not None:
@@ -187,7 +186,9 @@ def blurred_points(xy: NDArray[np.float64], values: NDArray[np.float64], shape: 
     ----------
     xy : ndarray, shape (N, 2)
         Point positions ``(u, v)``, pixels.
-    values : ndarray, shape (N,)
+    values : ndarray, shape (N,) or (B, N)
+        The points' masses; one row per plane for several planes of the
+        same points (their places are worked out once).
     shape : (int, int)
         Plane shape (H, W).
     sigma : float
@@ -195,33 +196,39 @@ def blurred_points(xy: NDArray[np.float64], values: NDArray[np.float64], shape: 
 
     Returns
     -------
-    ndarray, shape (H, W), float32
+    ndarray, shape (H, W) or (B, H, W), float32
     """
     h, w = shape
+    rows_of = np.atleast_2d(values)
+    out = np.empty((len(rows_of), h, w), dtype=np.float32)
     k, hs, ws = _coarse_grid(sigma, shape)
     if k == 1:
         cols = np.clip(np.rint(xy[:, 0]).astype(np.int64), 0, w - 1)
         rows = np.clip(np.rint(xy[:, 1]).astype(np.int64), 0, h - 1)
-        plane = np.bincount(rows * w + cols, weights=values, minlength=h * w)
-        return np.asarray(cv2.GaussianBlur(plane.astype(np.float32).reshape(h, w), (0, 0), sigma,
-                                           borderType=cv2.BORDER_CONSTANT))
+        for b, row in enumerate(rows_of):
+            plane = np.bincount(rows * w + cols, weights=row, minlength=h * w)
+            out[b] = cv2.GaussianBlur(plane.astype(np.float32).reshape(h, w), (0, 0), sigma,
+                                      borderType=cv2.BORDER_CONSTANT)
+        return out if np.ndim(values) == 2 else out[0]
     gx = np.clip((xy[:, 0] + 0.5) / k - 0.5, 0.0, ws - 1.0)
     gy = np.clip((xy[:, 1] + 0.5) / k - 0.5, 0.0, hs - 1.0)
     c0 = np.minimum(gx.astype(np.int64), max(ws - 2, 0))
     r0 = np.minimum(gy.astype(np.int64), max(hs - 2, 0))
     fx, fy = gx - c0, gy - r0
     c1, r1 = np.minimum(c0 + 1, ws - 1), np.minimum(r0 + 1, hs - 1)
-    # Each block holds k^2 pixels' mass: its blurred value is k^2 the pixels'.
-    v = values / (k * k)
     index = np.concatenate([r0 * ws + c0, r0 * ws + c1, r1 * ws + c0, r1 * ws + c1])
-    mass = np.concatenate([v * (1 - fx) * (1 - fy), v * fx * (1 - fy), v * (1 - fx) * fy,
-                           v * fx * fy])
-    splat = np.bincount(index, weights=mass, minlength=hs * ws).astype(np.float32)
+    ax, ay = 1 - fx, 1 - fy
     # The splat spreads a point by k^2 / 6 (px^2) on average: blurred that much less.
-    coarse = np.asarray(cv2.GaussianBlur(splat.reshape(hs, ws), (0, 0),
-                                         np.sqrt(sigma**2 - k * k / 6.0) / k,
-                                         borderType=cv2.BORDER_CONSTANT), dtype=np.float32)
-    return _refine(coarse, k, shape)
+    width = np.sqrt(sigma**2 - k * k / 6.0) / k
+    for b, row in enumerate(rows_of):
+        # Each block holds k^2 pixels' mass: its blurred value is k^2 the pixels'.
+        v = row / (k * k)
+        mass = np.concatenate([v * ax * ay, v * fx * ay, v * ax * fy, v * fx * fy])
+        splat = np.bincount(index, weights=mass, minlength=hs * ws).astype(np.float32)
+        coarse = np.asarray(cv2.GaussianBlur(splat.reshape(hs, ws), (0, 0), width,
+                                             borderType=cv2.BORDER_CONSTANT), dtype=np.float32)
+        out[b] = _refine(coarse, k, shape)
+    return out if np.ndim(values) == 2 else out[0]
 
 
 def smooth(plane: NDArray[np.float32], sigma: float, border: int) -> NDArray[np.float32]:
