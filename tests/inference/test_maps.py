@@ -50,6 +50,7 @@ def test_restrict_maps_keeps_the_window_only():
     np.testing.assert_allclose(sub.density[:, 50:80, 40:70], alone.density[:, 50:80, 40:70],
                                atol=1e-3)
     assert 0 < sub.chance < maps.chance
+    assert sub.chance == pytest.approx(float(sub.density.mean(dtype=np.float64)), rel=1e-12)
 
 
 def _gaussian_sum(xy, shape, sigma):

@@ -338,15 +338,19 @@ def restrict_maps(maps: TestMaps, lo: NDArray[np.float64], hi: NDArray[np.float6
     h, w = maps.shape
     c0, r0 = (max(int(np.floor(x)), 0) for x in lo)
     c1, r1 = min(int(np.ceil(hi[0])) + 1, w), min(int(np.ceil(hi[1])) + 1, h)
-    # Zeroed pages from the system (calloc): those outside the window are never filled.
+    # Zeroed pages from the system (calloc): those outside the window are never
+    # touched, not even by the mean, which is the window's sum over the whole.
     density = np.zeros(maps.density.shape, dtype=maps.density.dtype)
+    total = 0.0
     if c1 > c0 and r1 > r0:
-        density[:, r0:r1, c0:c1] = maps.density[:, r0:r1, c0:c1]
+        window = maps.density[:, r0:r1, c0:c1]
+        density[:, r0:r1, c0:c1] = window
+        total = float(window.sum(dtype=np.float64))
     return TestMaps(xy=maps.xy[inside], theta=maps.theta[inside], vote_xy=maps.vote_xy[voting],
                     vote_theta=maps.vote_theta[voting], vote_weight=maps.vote_weight[voting],
                     bin_start=bin_start, density=density, lut=maps.lut,
                     vote_radius=maps.vote_radius, position_sigma=maps.position_sigma,
-                    chance=float(density.mean(dtype=np.float64)))
+                    chance=total / density.size)
 
 
 def scaled_features(features: EdgeFeatures, shape: tuple[int, int], scale: float
