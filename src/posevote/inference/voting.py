@@ -45,13 +45,21 @@ def accumulate_votes(train_xy, train_theta, train_w, alpha, scale, test_xy, test
         last -= 1
     reach = (last + 0.5) / lut_scale + 1e-9
     gh, gw = acc.shape
+    # Positions in cells once, not a division per pair.
+    inv_cell = 1.0 / cell
+    n_test = test_xy.shape[0]
+    tx = np.empty(n_test)
+    ty = np.empty(n_test)
+    for j in range(n_test):
+        tx[j] = test_xy[j, 0] * inv_cell
+        ty[j] = test_xy[j, 1] * inv_cell
     ca, sa = np.cos(alpha), np.sin(alpha)
     for i in range(train_xy.shape[0]):
         wi = train_w[i]
         if wi <= 0.0:
             continue
-        qx = scale * (ca * train_xy[i, 0] - sa * train_xy[i, 1])
-        qy = scale * (sa * train_xy[i, 0] + ca * train_xy[i, 1])
+        qx = scale * (ca * train_xy[i, 0] - sa * train_xy[i, 1]) * inv_cell
+        qy = scale * (sa * train_xy[i, 0] + ca * train_xy[i, 1]) * inv_cell
         th = train_theta[i] + alpha
         th = th - np.pi * np.floor(th / np.pi)
         centre = int(th / bin_width)
@@ -68,8 +76,8 @@ def accumulate_votes(train_xy, train_theta, train_w, alpha, scale, test_xy, test
                 wo = lut[int(d * lut_scale + 0.5)]
                 if wo <= 0.0:
                     continue
-                gx = (test_xy[j, 0] - qx) / cell
-                gy = (test_xy[j, 1] - qy) / cell
+                gx = tx[j] - qx
+                gy = ty[j] - qy
                 if gx < 0.0 or gy < 0.0:
                     continue
                 c0 = int(gx)
@@ -79,10 +87,12 @@ def accumulate_votes(train_xy, train_theta, train_w, alpha, scale, test_xy, test
                 fx = gx - c0
                 fy = gy - r0
                 v = wi * wo * test_w[j]
-                acc[r0, c0] += v * (1.0 - fx) * (1.0 - fy)
-                acc[r0, c0 + 1] += v * fx * (1.0 - fy)
-                acc[r0 + 1, c0] += v * (1.0 - fx) * fy
-                acc[r0 + 1, c0 + 1] += v * fx * fy
+                vy = v * fy
+                v0 = v - vy
+                acc[r0, c0] += v0 - v0 * fx
+                acc[r0, c0 + 1] += v0 * fx
+                acc[r0 + 1, c0] += vy - vy * fx
+                acc[r0 + 1, c0 + 1] += vy * fx
 
 
 def accumulate_votes_reference(train_xy, train_theta, train_w, alpha, scale, test_xy, test_theta,
