@@ -109,9 +109,11 @@ def _hog_kernel(crop, cell, orientations, clip, eps, out):  # pragma: no cover -
             if y < 0.0 or (y == 0.0 and x < 0.0):
                 x = -x
             cosine = x / magnitude
+            # The edges' cosines decrease: the bin is how many lie at or above
+            # the cosine, counted without a branch to mispredict.
             b = 0
-            while b < orientations - 1 and cosine <= edge_cos[b]:
-                b += 1
+            for e in range(orientations - 1):
+                b += cosine <= edge_cos[e]
             hist[cr, col_cell[c], b] += magnitude
     hist /= cell * cell
     k = 0
