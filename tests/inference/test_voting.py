@@ -51,7 +51,7 @@ def test_score_kernels_match_reference(scene, t):
     ref = gather_score_reference(maps.density, train_xy, train_theta, train_w, alpha, scale, *t)
     assert got == pytest.approx(ref, rel=1e-9, abs=1e-12)
     m = len(train_w)
-    base, frac = np.empty((m, 2), np.int64), np.empty((m, 2))
+    base, frac = np.empty((m, 2), np.int64), np.empty((m, 4))
     obins, ofrac = np.empty((m, 2), np.int64), np.empty(m)
     _prepare_pose(maps.density, train_xy, train_theta, train_w, alpha, scale, t[0] - 2, t[1] + 1,
                   base, frac, obins, ofrac)

@@ -73,9 +73,9 @@ def accumulate_votes(train_xy, train_theta, train_w, alpha, scale, test_xy, test
                 d = abs(test_theta[j] - th)
                 if d > np.pi / 2.0:
                     d = np.pi - d
+                # A pair past the table's support adds zeros: cheaper than a
+                # branch that cannot be predicted.
                 wo = lut[int(d * lut_scale + 0.5)]
-                if wo <= 0.0:
-                    continue
                 gx = tx[j] - qx
                 gy = ty[j] - qy
                 if gx < 0.0 or gy < 0.0:
@@ -241,7 +241,8 @@ def _prepare_pose(density, train_xy, train_theta, train_w, alpha, scale, u0, v0,
     """Per-feature geometry of one pose relative to the integer pixel (u0, v0).
 
     Shifting the translation by whole pixels keeps every feature's fractional
-    position, so bilinear weights and orientation bins are computed once.
+    position, so bilinear weights (``frac``: the four corners' shares) and
+    orientation bins are computed once.
     """
     n_bins = density.shape[0]
     bin_width = np.pi / n_bins
@@ -253,8 +254,12 @@ def _prepare_pose(density, train_xy, train_theta, train_w, alpha, scale, u0, v0,
         r0 = np.floor(y)
         base[i, 0] = int(c0)
         base[i, 1] = int(r0)
-        frac[i, 0] = x - c0
-        frac[i, 1] = y - r0
+        fx = x - c0
+        fy = y - r0
+        frac[i, 0] = (1 - fx) * (1 - fy)
+        frac[i, 1] = fx * (1 - fy)
+        frac[i, 2] = (1 - fx) * fy
+        frac[i, 3] = fx * fy
         th = train_theta[i] + alpha
         th = th - np.pi * np.floor(th / np.pi)
         f = th / bin_width - 0.5
@@ -281,12 +286,10 @@ def _shifted_score(density, train_w, base, frac, obins, ofrac, du, dv, step=1
         r0 = base[i, 1] + dv
         if wi <= 0.0 or c0 < 0 or r0 < 0 or c0 >= w - 1 or r0 >= h - 1:
             continue
-        fx = frac[i, 0]
-        fy = frac[i, 1]
-        w00 = (1 - fx) * (1 - fy)
-        w01 = fx * (1 - fy)
-        w10 = (1 - fx) * fy
-        w11 = fx * fy
+        w00 = frac[i, 0]
+        w01 = frac[i, 1]
+        w10 = frac[i, 2]
+        w11 = frac[i, 3]
         b0 = obins[i, 0]
         b1 = obins[i, 1]
         v0 = (w00 * density[b0, r0, c0] + w01 * density[b0, r0, c0 + 1]
@@ -395,7 +398,7 @@ def _search_kernel(train_xy, train_theta, train_w, alphas, scales, test_xy, test
     tmp = np.zeros((gh, gw))
     m = train_xy.shape[0]
     base = np.empty((m, 2), dtype=np.int64)
-    frac = np.empty((m, 2))
+    frac = np.empty((m, 4))
     obins = np.empty((m, 2), dtype=np.int64)
     ofrac = np.empty(m)
     cache = np.empty((2 * _POLISH_RADIUS + 1, 2 * _POLISH_RADIUS + 1))
