@@ -98,6 +98,52 @@ _COMPASS_EVALS = 400
 
 
 @numba.njit(cache=True, nogil=True)
+def _rotate(density, xy, theta, alpha, scale, px, py, b0, b1, ft):  # pragma: no cover - compiled
+    """The features turned and scaled as :func:`gather_score` places them, before the shift."""
+    n_bins = density.shape[0]
+    bin_width = np.pi / n_bins
+    ca, sa = np.cos(alpha), np.sin(alpha)
+    for i in range(xy.shape[0]):
+        px[i] = scale * (ca * xy[i, 0] - sa * xy[i, 1])
+        py[i] = scale * (sa * xy[i, 0] + ca * xy[i, 1])
+        th = theta[i] + alpha
+        th = th - np.pi * np.floor(th / np.pi)
+        f = th / bin_width - 0.5
+        fb = np.floor(f)
+        ft[i] = f - fb
+        b0[i] = int(fb) % n_bins
+        b1[i] = (b0[i] + 1) % n_bins
+
+
+@numba.njit(cache=True, nogil=True)
+def _shifted(density, weight, px, py, b0, b1, ft, tu, tv):  # pragma: no cover - compiled
+    """:func:`gather_score` of the turned features of :func:`_rotate` shifted by (tu, tv)."""
+    h = density.shape[1]
+    w = density.shape[2]
+    total = 0.0
+    for i in range(px.shape[0]):
+        wi = weight[i]
+        if wi <= 0.0:
+            continue
+        x = px[i] + tu
+        y = py[i] + tv
+        if x < 0.0 or y < 0.0 or x >= w - 1 or y >= h - 1:
+            continue
+        c0 = int(x)
+        r0 = int(y)
+        fx = x - c0
+        fy = y - r0
+        p0 = b0[i]
+        p1 = b1[i]
+        v0 = ((1 - fx) * (1 - fy) * density[p0, r0, c0] + fx * (1 - fy) * density[p0, r0, c0 + 1]
+              + (1 - fx) * fy * density[p0, r0 + 1, c0] + fx * fy * density[p0, r0 + 1, c0 + 1])
+        v1 = ((1 - fx) * (1 - fy) * density[p1, r0, c0] + fx * (1 - fy) * density[p1, r0, c0 + 1]
+              + (1 - fx) * fy * density[p1, r0 + 1, c0] + fx * fy * density[p1, r0 + 1, c0 + 1])
+        total += wi * ((1.0 - ft[i]) * v0 + ft[i] * v1)
+    return total
+
+
+@numba.njit(cache=True, nogil=True)
 def _compass_search(density, xy, theta, weight, start, unit, log_bounds, max_shift
                     ):  # pragma: no cover - compiled
     """Maximise p(w) over ``start + z * unit`` by a compass search in z (|z| <= max_shift).
@@ -113,6 +159,13 @@ def _compass_search(density, xy, theta, weight, start, unit, log_bounds, max_shi
     step = _COMPASS_FIRST
     evals = 1
     trial = np.empty(4)
+    # The features turned at the current angle and scale: the shifts' trials
+    # (half of them) then skip the turn and the orientation bins.
+    n = xy.shape[0]
+    px, py, ft = np.empty(n), np.empty(n), np.empty(n)
+    b0, b1 = np.empty(n, dtype=np.int64), np.empty(n, dtype=np.int64)
+    _rotate(density, xy, theta, start[0] + z[0] * unit[0], np.exp(start[1] + z[1] * unit[1]),
+            px, py, b0, b1, ft)
     while step >= _COMPASS_LAST and evals < _COMPASS_EVALS:
         move = -1
         move_value = best
@@ -124,9 +177,13 @@ def _compass_search(density, xy, theta, weight, start, unit, log_bounds, max_shi
             log_s = start[1] + trial[1] * unit[1]
             if log_s < log_bounds[0] or log_s > log_bounds[1]:
                 continue
-            value = gather_score(density, xy, theta, weight, start[0] + trial[0] * unit[0],
-                                 np.exp(log_s), start[2] + trial[2] * unit[2],
-                                 start[3] + trial[3] * unit[3])
+            if k >= 4:
+                value = _shifted(density, weight, px, py, b0, b1, ft,
+                                 start[2] + trial[2] * unit[2], start[3] + trial[3] * unit[3])
+            else:
+                value = gather_score(density, xy, theta, weight, start[0] + trial[0] * unit[0],
+                                     np.exp(log_s), start[2] + trial[2] * unit[2],
+                                     start[3] + trial[3] * unit[3])
             evals += 1
             if value > move_value:
                 move = k
@@ -136,6 +193,9 @@ def _compass_search(density, xy, theta, weight, start, unit, log_bounds, max_shi
         else:
             z[move // 2] += step if move % 2 == 0 else -step
             best = move_value
+            if move < 4:
+                _rotate(density, xy, theta, start[0] + z[0] * unit[0],
+                        np.exp(start[1] + z[1] * unit[1]), px, py, b0, b1, ft)
     return z, best, initial
 
 
