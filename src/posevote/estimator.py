@@ -23,6 +23,7 @@ from posevote.data.images import load_image
 from posevote.features.edges import EdgeFeatures, EdgeOptions, extract_edges, without_box
 from posevote.geometry import box_iou
 from posevote.inference.coverage import rerank_by_coverage
+from posevote.inference.maps import TestMaps
 from posevote.inference.search import (
     OBJECT_MARGIN,
     OBJECT_OVERLAP,
@@ -332,21 +333,22 @@ class PoseEstimator(GroupedParams):
         model = self._check_fitted()
         shape = (int(img.shape[0]), int(img.shape[1]))
         setup = self.setup()
-        maps = search_maps(feats, shape, model, setup)
+        full = search_maps(feats, shape, model, setup)
+        maps: TestMaps | Sequence[TestMaps | None] = full
         # The verification only ranks the first search's probes and moves their
         # boxes itself: they need no polish unless it finds nothing.
         verifying = self.appearance is not None and bool(self.appearance.candidates)
-        probes = rerank_by_coverage(probe(model, maps, setup, polish=not verifying), model, maps,
+        probes = rerank_by_coverage(probe(model, full, setup, polish=not verifying), model, full,
                                     setup)
         verified_box = None
         located = None
         if verifying and self.appearance is not None and probes.score.any():
-            located = verify(probes, img, feats, maps, model, self._appearance_model(),
+            located = verify(probes, img, feats, full, model, self._appearance_model(),
                              self.appearance, setup)
             if located is not None:
                 feats, maps, probes, verified_box = located
         if verifying and located is None:
-            probes = rerank_by_coverage(probe(model, maps, setup), model, maps, setup)
+            probes = rerank_by_coverage(probe(model, full, setup), model, full, setup)
         modes = find_modes(probes, max_modes=self.max_modes)
         hyps = [refine_mode(probes, v, fit=self.fitting, radius_steps=FIT_RADIUS_STEPS)
                 for v in modes]

@@ -220,7 +220,7 @@ def box_centre(box: ArrayLike) -> tuple[float, float]:
     return x + (w - 1) / 2.0, y + (h - 1) / 2.0
 
 
-def box_iou(box_a: ArrayLike, box_b: ArrayLike) -> NDArray[np.float64]:
+def box_iou(box_a: ArrayLike, box_b: ArrayLike) -> NDArray[np.float64] | np.float64:
     """Intersection over union of ``(x, y, w, h)`` boxes (broadcastable)."""
     if isinstance(box_a, tuple) and isinstance(box_b, tuple) and len(box_a) == len(box_b) == 4:
         # One pair, as loops ask: the same arithmetic on plain floats, without

@@ -109,3 +109,33 @@ def test_the_search_features_of_a_viewpoint_are_kept_per_model(fitted_estimator)
     # Another budget or viewpoint is another entry.
     assert len(_probe_features(model, 0.5, 0.0, max_features=None, **kw)[1]) > 7
     assert len(_PROBE_CACHE[model]) >= 2
+
+
+def test_a_search_near_a_pose_probes_the_scales_near_its_own(fitted_estimator, draw):
+    from posevote.features.edges import extract_edges
+    from posevote.inference.search import near_scales, probe, search_maps
+    from posevote.results import Hypothesis
+
+    est = fitted_estimator
+    options = SearchOptions(scale_range=(0.7, 1.45), scale_steps=6, object_kernel=True)
+    grid = options.grid()[1]
+    # 1.5 grid steps either side of the pose's scale; all when under two are near.
+    assert near_scales(grid, float(grid[2]), options).tolist() == [1, 2, 3]
+    assert near_scales(grid, 0.3, options).tolist() == list(range(6))
+    setup = replace(est.setup(), options=options)
+    image = draw(np.radians(60))
+    feats = extract_edges(image, est.edges, training=False)
+    maps = search_maps(feats, image.shape, est.model_, setup)
+    near = Hypothesis(azimuth=np.radians(60.0), elevation=0.0, inplane=0.0,
+                      scale=float(grid[2]), position=(64.0, 64.0), box=(20.0, 20.0, 88.0, 88.0),
+                      score=0.5, refined=False)
+    probes = probe(est.model_, maps, setup, near=near)
+    np.testing.assert_array_equal(probes.scale, grid[[1, 2, 3]])
+    everywhere = probe(est.model_, maps, setup)
+    np.testing.assert_array_equal(probes.score, everywhere.score[
+        np.isin(everywhere.azimuth, probes.azimuth)][:, :, 1:4])
+    # Scales without maps are not probed.
+    some = [m if k != 3 else None for k, m in enumerate(maps)]
+    assert probe(est.model_, some, setup, near=near).scale.tolist() == grid[[1, 2]].tolist()
+    with pytest.raises(ValueError, match="one TestMaps \\(or None\\) per scale"):
+        probe(est.model_, maps[:2], setup)

@@ -181,7 +181,7 @@ def explained_sums_reference(xy: NDArray[np.float64], theta: NDArray[np.float64]
     i, j, dist = pairs["i"], pairs["j"], pairs["v"]
     terms = (strength[i] * position_kernel(dist ** 2, sigma)
              * orientation_kernel(theta[i] - test_theta[j], kappa))
-    return np.bincount(j, weights=terms, minlength=len(test_xy))
+    return np.bincount(j, weights=terms, minlength=len(test_xy)).astype(np.float64)
 
 
 def recognition_margin(scores: NDArray[np.float64]) -> tuple[int, float]:

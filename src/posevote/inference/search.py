@@ -43,6 +43,11 @@ MAX_GRID_STEPS = 400
 #: Width of the local chance level, in search kernel widths (``chance_correction``):
 #: chosen on the five epfl-cv folds among 2, 4, 6 and 8 (docs/DEFAULTS.md).
 CHANCE_WIDTH = 4.0
+#: A search near a known pose (:func:`probe` with ``near``) probes, with
+#: per-scale maps, the scales within this many grid steps of its scale:
+#: chosen on the five epfl-cv folds (better or equal on each than all six
+#: scales; docs/DEFAULTS.md).
+NEAR_SCALE_STEPS = 1.5
 #: Several objects in one image: a box overlapping one already found by more
 #: than this IoU is the same object found again.
 OBJECT_OVERLAP = 0.3
@@ -388,7 +393,7 @@ def viewpoint_features(model: PoseModel, azimuth: float, elevation: float, *,
 # A model's search features by viewpoint: the grid's viewpoints recur in every
 # image, and collecting them (1-2 ms) is a tenth of a viewpoint's searches.
 _PROBE_CACHE: weakref.WeakKeyDictionary[PoseModel, dict[tuple[Any, ...], tuple[
-    NDArray[np.float64], ...]]] = weakref.WeakKeyDictionary()
+    NDArray[Any], ...]]] = weakref.WeakKeyDictionary()
 _PROBE_CACHE_SIZE = 4096
 _PROBE_LOCK = threading.Lock()
 
@@ -536,7 +541,19 @@ def probe_poses(
                     score=score, translation=translation, box=box)
 
 
-def probe(model: PoseModel, maps: TestMaps | list[TestMaps], setup: SearchSetup, *,
+def near_scales(scales: NDArray[np.float64], scale: float, options: SearchOptions
+                ) -> NDArray[np.intp]:
+    """Indices of the grid ``scales`` within :data:`NEAR_SCALE_STEPS` steps of ``scale``.
+
+    All of them when fewer than two are that near (a scale off the grid).
+    """
+    step = options.scale_step()
+    near = np.flatnonzero(np.abs(np.log(scales) - np.log(scale))
+                          <= NEAR_SCALE_STEPS * step + 1e-9)
+    return near if len(near) >= 2 else np.arange(len(scales))
+
+
+def probe(model: PoseModel, maps: TestMaps | Sequence[TestMaps | None], setup: SearchSetup, *,
           near: Hypothesis | None = None, size: float = 1.0,
           progress: Callable[[int], None] | None = None, polish: bool = True) -> ProbeSet:
     """Probe p(w) on the grid of ``setup`` (Fig. 2).
@@ -544,11 +561,13 @@ def probe(model: PoseModel, maps: TestMaps | list[TestMaps], setup: SearchSetup,
     Parameters
     ----------
     model : PoseModel
-    maps : TestMaps or list of TestMaps
-        From :func:`search_maps` (or restricted to a window).
+    maps : TestMaps or sequence of TestMaps
+        From :func:`search_maps` (or restricted to a window). Per-scale maps
+        may hold None for scales not to be probed.
     setup : SearchSetup
     near : Hypothesis, optional
-        Probe only the viewpoints within three grid steps of it.
+        Probe only the viewpoints within three grid steps of it, and, with
+        per-scale maps, the scales of :func:`near_scales`.
     size : float, optional
         Multiplies the scale grid (an instance's training size); per-scale
         maps fix the grid, and then it is ignored.
@@ -578,9 +597,21 @@ def probe(model: PoseModel, maps: TestMaps | list[TestMaps], setup: SearchSetup,
         raise ValueError(f"the search grid has {len(az)} viewpoints x {len(inplanes)} in-plane "
                          f"angles x {len(scales)} scales, over the limit of {MAX_PROBES} "
                          "probes; use a coarser SearchOptions grid")
+    given: TestMaps | list[TestMaps]
     if isinstance(maps, TestMaps):
         scales = scales * size
-    return probe_poses(model, maps, azimuths=az, elevations=el, inplanes=inplanes,
+        given = maps
+    else:
+        if len(maps) != len(scales):
+            raise ValueError(f"need one TestMaps (or None) per scale: {len(maps)} for "
+                             f"{len(scales)} scales")
+        keep = np.arange(len(scales)) if near is None else near_scales(scales, near.scale, opts)
+        keep = np.array([k for k in keep if maps[k] is not None], dtype=np.intp)
+        if len(keep) == 0:
+            raise ValueError("no maps for the scales to probe")
+        scales = scales[keep]
+        given = [m for m in (maps[k] for k in keep) if m is not None]
+    return probe_poses(model, given, azimuths=az, elevations=el, inplanes=inplanes,
                        scales=scales, viewpoint_kappa=setup.viewpoint_kappa,
                        use_weights=setup.use_weights, k1_cutoff=K1_CUTOFF,
                        max_voters=MAX_VOTERS, max_features=opts.max_search_features,

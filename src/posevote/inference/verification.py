@@ -24,7 +24,7 @@ from posevote.features.appearance import box_descriptor
 from posevote.features.edges import EdgeFeatures
 from posevote.geometry import box_centre, viewing_direction
 from posevote.inference.maps import TestMaps, restrict_maps
-from posevote.inference.search import ProbeSet, SearchSetup, probe, probe_spacing
+from posevote.inference.search import ProbeSet, SearchSetup, near_scales, probe, probe_spacing
 from posevote.model.appearance import REGRESSION_STEPS, AppearanceModel, AppearanceOptions, shift_box
 from posevote.model.density import PoseModel
 from posevote.results import Hypothesis
@@ -271,7 +271,7 @@ def jittered_nearest_view(image: NDArray[np.floating], box: Sequence[float],
 def verify(probes: ProbeSet, image: NDArray[np.float64], features: EdgeFeatures,
            maps: TestMaps | list[TestMaps], model: PoseModel, appearance: AppearanceModel,
            options: AppearanceOptions, setup: SearchSetup
-           ) -> tuple[EdgeFeatures, TestMaps | list[TestMaps], ProbeSet,
+           ) -> tuple[EdgeFeatures, TestMaps | list[TestMaps | None], ProbeSet,
                       tuple[float, float, float, float]] | None:
     """Verify the best probes by appearance and search again in the winner's box.
 
@@ -321,15 +321,19 @@ def verify(probes: ProbeSet, image: NDArray[np.float64], features: EdgeFeatures,
     keep = np.all(np.abs(features.xy - centre) <= half, axis=1)
     if not keep.any():
         return None
-    if isinstance(maps, TestMaps):
-        inside: TestMaps | list[TestMaps] = restrict_maps(maps, centre - half, centre + half)
-    else:
-        inside = [restrict_maps(m, (centre - half) / f, (centre + half) / f)
-                  for m, f in zip(maps, probes.scale, strict=True)]
     x, y, w, h = box
+    # The regressed box's height tells the scale: only the scales near it are
+    # searched again (and their maps restricted).
     near = Hypothesis(azimuth=float(probes.azimuth[v]), elevation=float(probes.elevation[v]),
-                      inplane=float(probes.inplane[a]), scale=float(probes.scale[s]),
+                      inplane=float(probes.inplane[a]), scale=float(h / probes.box[v, 1]),
                       position=(float(centre[0]), float(centre[1])), box=(x, y, w, h),
                       score=float(probes.score[v, a, s]), refined=False)
+    inside: TestMaps | list[TestMaps | None]
+    if isinstance(maps, TestMaps):
+        inside = restrict_maps(maps, centre - half, centre + half)
+    else:
+        kept = set(near_scales(probes.scale, near.scale, setup.options).tolist())
+        inside = [restrict_maps(m, (centre - half) / f, (centre + half) / f) if k in kept
+                  else None for k, (m, f) in enumerate(zip(maps, probes.scale, strict=True))]
     again = probe(model, inside, setup, near=near)
     return features.select(keep), inside, again, (x, y, w, h)

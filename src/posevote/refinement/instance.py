@@ -108,8 +108,9 @@ def explained(hypotheses: Sequence[Hypothesis], features: EdgeFeatures, full: Po
 
 
 def instance_refine(instance: int, hypothesis: Hypothesis, full: PoseModel,
-                    search_maps: TestMaps | list[TestMaps], fine: TestMaps, setup: SearchSetup,
-                    *, fitting: bool, local: bool, near: bool = True) -> Hypothesis:
+                    search_maps: TestMaps | Sequence[TestMaps | None], fine: TestMaps,
+                    setup: SearchSetup, *, fitting: bool, local: bool, near: bool = True
+                    ) -> Hypothesis:
     """Re-estimate near ``hypothesis`` with one instance's full model (Sec. III-B).
 
     With ``near=False`` the instance searches every viewpoint, on the scale
@@ -130,8 +131,8 @@ def instance_refine(instance: int, hypothesis: Hypothesis, full: PoseModel,
 
 
 def recognize(hypotheses: list[Hypothesis], features: EdgeFeatures, full: PoseModel,
-              search_maps: TestMaps | list[TestMaps], fine: TestMaps, setup: SearchSetup,
-              options: RecognitionOptions, *, fitting: bool, local: bool
+              search_maps: TestMaps | Sequence[TestMaps | None], fine: TestMaps,
+              setup: SearchSetup, options: RecognitionOptions, *, fitting: bool, local: bool
               ) -> tuple[list[Hypothesis], str, float]:
     """Recognise the instance and re-estimate with its model (Sec. III-B).
 
