@@ -427,9 +427,8 @@ def _search_kernel(train_xy, train_theta, train_w, alphas, scales, test_xy, test
                     best_r = r
                     best_c = c
                     break
-                _prepare_pose(density, train_xy, train_theta, train_w, alphas[a], scales[s],
-                              c * cell, r * cell, base, frac, obins, ofrac)
-                start = _shifted_score(density, train_w, base, frac, obins, ofrac, 0, 0)
+                start = gather_score(density, train_xy, train_theta, train_w, alphas[a],
+                                     scales[s], c * cell, r * cell)
                 if start > best_start:
                     best_start = start
                     best_r = r
