@@ -124,6 +124,7 @@ def median_spacing_reference(xy: NDArray[np.float64]) -> float:
 @numba.njit(cache=True, nogil=True)
 def _explained_sums(xy, theta, strength, test_xy, test_theta, order, sigma, kappa
                     ):  # pragma: no cover - compiled
+    """:func:`explained_sums` over the test points sorted by x (``order``)."""
     reach = 3.0 * sigma
     n = test_xy.shape[0]
     sorted_x = np.empty(n)
