@@ -139,3 +139,36 @@ def test_a_search_near_a_pose_probes_the_scales_near_its_own(fitted_estimator, d
     assert probe(est.model_, some, setup, near=near).scale.tolist() == grid[[1, 2]].tolist()
     with pytest.raises(ValueError, match="one TestMaps \\(or None\\) per scale"):
         probe(est.model_, maps[:2], setup)
+
+
+def test_a_ranking_search_probes_the_scales_between_at_the_best_viewpoints(fitted_estimator,
+                                                                             draw):
+    from posevote.features.edges import extract_edges
+    from posevote.inference import probe_poses
+    from posevote.inference.search import MAX_VOTERS, VOTE_CANDIDATES, probe, search_maps
+    from posevote.model.kernels import K1_CUTOFF
+
+    est = fitted_estimator
+    options = SearchOptions(scale_range=(0.7, 1.45), scale_steps=6, object_kernel=True)
+    setup = replace(est.setup(), options=options)
+    image = draw(np.radians(60))
+    maps = search_maps(extract_edges(image, est.edges, training=False), image.shape, est.model_,
+                       setup)
+    ranked = probe(est.model_, maps, setup, polish=False)
+    scales = options.grid()[1]
+    everywhere = probe_poses(est.model_, maps, azimuths=ranked.azimuth,
+                             elevations=ranked.elevation, inplanes=ranked.inplane,
+                             scales=scales, viewpoint_kappa=setup.viewpoint_kappa,
+                             k1_cutoff=K1_CUTOFF, max_voters=MAX_VOTERS,
+                             n_candidates=VOTE_CANDIDATES, polish=False)
+    np.testing.assert_array_equal(ranked.scale, scales)
+    # Every other scale at every viewpoint, as a search of all of them finds it.
+    np.testing.assert_array_equal(ranked.score[:, :, ::2], everywhere.score[:, :, ::2])
+    # The scales between at the third of the viewpoints that scored best there.
+    probed = np.flatnonzero(ranked.score[:, 0, 1::2].any(axis=1))
+    best = np.argsort(-everywhere.score[:, :, ::2].max(axis=(1, 2)), kind="stable")[:6]
+    assert sorted(probed.tolist()) == sorted(best.tolist())
+    np.testing.assert_array_equal(ranked.score[probed][:, :, 1::2],
+                                  everywhere.score[probed][:, :, 1::2])
+    assert not ranked.score[np.setdiff1d(np.arange(18), probed)][:, :, 1::2].any()
+    np.testing.assert_array_equal(ranked.translation[:, :, ::2], everywhere.translation[:, :, ::2])
