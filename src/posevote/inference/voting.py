@@ -156,16 +156,22 @@ def gather_score(density, train_xy, train_theta, train_w, alpha, scale, tu, tv
         ft = f - fb
         b0 = int(fb) % n_bins
         b1 = (b0 + 1) % n_bins
-        c0 = int(x)
-        r0 = int(y)
-        fx = x - c0
-        fy = y - r0
-        v0 = ((1 - fx) * (1 - fy) * density[b0, r0, c0] + fx * (1 - fy) * density[b0, r0, c0 + 1]
-              + (1 - fx) * fy * density[b0, r0 + 1, c0] + fx * fy * density[b0, r0 + 1, c0 + 1])
-        v1 = ((1 - fx) * (1 - fy) * density[b1, r0, c0] + fx * (1 - fy) * density[b1, r0, c0 + 1]
-              + (1 - fx) * fy * density[b1, r0 + 1, c0] + fx * fy * density[b1, r0 + 1, c0 + 1])
-        total += wi * ((1.0 - ft) * v0 + ft * v1)
+        total += wi * phi_at(density, x, y, b0, b1, ft)
     return total
+
+
+@numba.njit(cache=True, nogil=True)
+def phi_at(density, x, y, b0, b1, ft):  # pragma: no cover - compiled
+    """phi at (x, y) inside the maps: bilinear in position, between bins ``b0`` and ``b1``."""
+    c0 = int(x)
+    r0 = int(y)
+    fx = x - c0
+    fy = y - r0
+    v0 = ((1 - fx) * (1 - fy) * density[b0, r0, c0] + fx * (1 - fy) * density[b0, r0, c0 + 1]
+          + (1 - fx) * fy * density[b0, r0 + 1, c0] + fx * fy * density[b0, r0 + 1, c0 + 1])
+    v1 = ((1 - fx) * (1 - fy) * density[b1, r0, c0] + fx * (1 - fy) * density[b1, r0, c0 + 1]
+          + (1 - fx) * fy * density[b1, r0 + 1, c0] + fx * fy * density[b1, r0 + 1, c0 + 1])
+    return (1.0 - ft) * v0 + ft * v1
 
 
 def density_at(density: NDArray[np.float32], xy: NDArray[np.float64], theta: NDArray[np.float64]

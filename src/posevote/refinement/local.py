@@ -20,7 +20,7 @@ from numpy.typing import NDArray
 
 from posevote.inference.maps import TestMaps
 from posevote.inference.search import ProbeSet, SearchSetup, viewpoint_features
-from posevote.inference.voting import gather_score, gather_score_reference
+from posevote.inference.voting import gather_score, gather_score_reference, phi_at
 from posevote.model.density import PoseModel
 from posevote.model.kernels import K1_CUTOFF
 from posevote.refinement.fitting import (
@@ -129,17 +129,7 @@ def _shifted(density, weight, px, py, b0, b1, ft, tu, tv):  # pragma: no cover -
         y = py[i] + tv
         if x < 0.0 or y < 0.0 or x >= w - 1 or y >= h - 1:
             continue
-        c0 = int(x)
-        r0 = int(y)
-        fx = x - c0
-        fy = y - r0
-        p0 = b0[i]
-        p1 = b1[i]
-        v0 = ((1 - fx) * (1 - fy) * density[p0, r0, c0] + fx * (1 - fy) * density[p0, r0, c0 + 1]
-              + (1 - fx) * fy * density[p0, r0 + 1, c0] + fx * fy * density[p0, r0 + 1, c0 + 1])
-        v1 = ((1 - fx) * (1 - fy) * density[p1, r0, c0] + fx * (1 - fy) * density[p1, r0, c0 + 1]
-              + (1 - fx) * fy * density[p1, r0 + 1, c0] + fx * fy * density[p1, r0 + 1, c0 + 1])
-        total += wi * ((1.0 - ft[i]) * v0 + ft[i] * v1)
+        total += wi * phi_at(density, x, y, b0[i], b1[i], ft[i])
     return total
 
 
