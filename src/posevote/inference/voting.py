@@ -402,7 +402,8 @@ def _search_kernel(train_xy, train_theta, train_w, alphas, scales, test_xy, test
     gw = int(np.ceil(w / cell)) + 1
     acc = np.zeros((gh, gw))
     tmp = np.zeros((gh, gw))
-    m = train_xy.shape[0]
+    # The polish's per-pose tables; an unpolished search needs none.
+    m = train_xy.shape[0] if polish else 0
     base = np.empty((m, 2), dtype=np.int64)
     frac = np.empty((m, 4))
     obins = np.empty((m, 2), dtype=np.int64)
