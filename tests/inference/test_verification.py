@@ -65,21 +65,6 @@ def test_candidates_are_judged_on_their_regressed_boxes(draw):
     assert plain is not None and plain[1] > 0.5
 
 
-def test_the_short_list_limits_the_choice(draw):
-    az, window, train, scene = _views_and_scene(draw)
-    probes = _probes([(228, 98), (228, 98), (68, 98)], [0.9, 0.8, 0.5])
-    clutter = box_descriptor(scene, (180, 50, 96, 96), window)
-    # A classifier that finds the clutter most object-like: with a short
-    # list of one, the clutter wins; with all three, the object does.
-    likes_clutter = np.r_[clutter, 0.0].astype(np.float64)
-    kw = {"window": window, "n_candidates": 3, "tolerance": np.radians(10.0),
-          "objectness": likes_clutter}
-    assert verify_candidates(probes, scene, train, az, np.zeros(len(az)), shortlist=1,
-                             **kw)[0] == (0, 0, 0)
-    assert verify_candidates(probes, scene, train, az, np.zeros(len(az)), shortlist=3,
-                             **kw)[0] == (2, 0, 0)
-
-
 def test_the_objectness_weight_trades_distance_for_object_likeness(draw):
     az, window, train, scene = _views_and_scene(draw)
     probes = _probes([(228, 98), (228, 98), (68, 98)], [0.9, 0.8, 0.5])
@@ -87,7 +72,7 @@ def test_the_objectness_weight_trades_distance_for_object_likeness(draw):
     obj = box_descriptor(scene, (20, 50, 96, 96), window)
     likes_clutter = np.r_[clutter, 0.0].astype(np.float64)
     kw = {"window": window, "n_candidates": 3, "tolerance": np.radians(10.0),
-          "objectness": likes_clutter, "shortlist": 3}
+          "objectness": likes_clutter}
     # The object's box is a training view (distance 0); the clutter's is far
     # but the classifier likes it: a weight beyond the distance gap over the
     # score gap lets the clutter win, none or a small one keeps the object.
@@ -119,7 +104,7 @@ def test_verify_searches_again_inside_the_winners_box(draw, tmp_path):
     from posevote.model.appearance import AppearanceOptions
 
     az = np.radians(np.arange(0, 360, 20.0))
-    est = PoseEstimator(appearance=AppearanceOptions(candidates=10, shortlist=10))
+    est = PoseEstimator(appearance=AppearanceOptions(candidates=10))
     est.fit([draw(a) for a in az], az)
     assert est.appearance_model_.descriptors.shape[0] == 18
     scene = np.zeros((200, 300))

@@ -131,7 +131,7 @@ _ABLATION = (
         note="beyond the paper: features morphed between training views, two probes per gap"),
 )
 
-_APPEARANCE = "HOG verification of 80 candidates, box regression, nearest-view viewpoint"
+_APPEARANCE = "HOG verification of 40 candidates, box regression, nearest-view viewpoint"
 _EPFL_ROWS = (
     Row(name="paper: weights + fitting",
         params={"appearance": None, "recognition": None, "search__coverage": True},

@@ -39,7 +39,7 @@ def verify_candidates(probes: ProbeSet, image: NDArray[np.float64],
                       descriptors: NDArray[np.float32], view_azimuth: NDArray[np.float64],
                       view_elevation: NDArray[np.float64], *, window: tuple[int, int],
                       n_candidates: int, tolerance: float,
-                      objectness: NDArray[np.float64] | None = None, shortlist: int = 10,
+                      objectness: NDArray[np.float64] | None = None,
                       regressor: NDArray[np.float64] | None = None,
                       objectness_weight: float = 0.0
                       ) -> tuple[tuple[int, int, int], float, tuple[float, ...]] | None:
@@ -63,13 +63,11 @@ def verify_candidates(probes: ProbeSet, image: NDArray[np.float64],
         A candidate is compared with the training views within this angle of
         its viewpoint, radians.
     objectness : ndarray, shape (D + 1,), optional
-        Classifier of :func:`train_objectness`; with it, only the
-        ``shortlist`` candidates it scores highest are compared.
-    shortlist : int, optional
-        Size of the short list.
+        Classifier of :func:`train_objectness`, weighed in by
+        ``objectness_weight``.
     regressor : ndarray, shape (B, 4, D + 1), optional
         Box regressions (:func:`train_box_regression`); with them, each
-        short-listed candidate's box is first regressed
+        candidate's box is first regressed
         (:func:`regress_described`) and the regressed box's descriptor is
         compared.
     objectness_weight : float, optional
@@ -102,9 +100,6 @@ def verify_candidates(probes: ProbeSet, image: NDArray[np.float64],
             found.append(((v, a, s), near, d))
     if not found:
         return None
-    if objectness is not None and len(found) > shortlist:
-        looks = np.array([float(d @ objectness[:-1]) + objectness[-1] for _, _, d in found])
-        found = [found[i] for i in np.sort(np.argsort(-looks, kind="stable")[:shortlist])]
     compared: list[tuple[tuple[int, int, int], NDArray[np.bool_], tuple[float, ...]]] = []
     described = []
     for index, near, d in found:
@@ -308,7 +303,7 @@ def verify(probes: ProbeSet, image: NDArray[np.float64], features: EdgeFeatures,
                               n_candidates=options.candidates,
                               tolerance=probe_spacing(probes) if options.tolerance_deg is None
                               else np.radians(options.tolerance_deg),
-                              objectness=appearance.objectness, shortlist=options.shortlist,
+                              objectness=appearance.objectness,
                               regressor=appearance.regressor,
                               objectness_weight=options.objectness_weight)
     if found is None:

@@ -39,14 +39,11 @@ class AppearanceOptions(Options):
 
     Attributes
     ----------
-    candidates : int, default 80
+    candidates : int, default 40
         The search's best probes whose (regressed) box is compared with the
         training views; the pose is then estimated again inside the winner's
         box. 0: no verification (the best mode's box is still regressed and
         its viewpoint taken from the nearest view).
-    shortlist : int, default 80
-        Of the candidates, only this many that the objectness classifier
-        finds most object-like are compared.
     tolerance_deg : float or None, default 40.0
         A candidate is compared with the training views within this angle of
         its viewpoint; None: one probe spacing.
@@ -59,15 +56,13 @@ class AppearanceOptions(Options):
         size and scaled by one plus or minus it; 0: the kept box's alone.
     """
 
-    candidates: int = 80
-    shortlist: int = 80
+    candidates: int = 40
     tolerance_deg: float | None = 40.0
     objectness_weight: float = 0.5
     jitter: float = 0.05
 
     def __post_init__(self) -> None:
         self._number("candidates", low=0, high=10_000, integer=True)
-        self._number("shortlist", low=1, high=10_000, integer=True)
         self._number("tolerance_deg", low=0.0, high=180.0, low_open=True, optional=True)
         self._number("objectness_weight", low=0.0, high=100.0)
         self._number("jitter", low=0.0, high=0.5, high_open=True)

@@ -37,7 +37,7 @@ from posevote.model.density import PoseModel
 from posevote.model.training import TrainedModel
 
 FORMAT_NAME = "posevote-model"
-FORMAT_VERSION = 3
+FORMAT_VERSION = 4
 
 #: A model file larger than this (bytes) is refused before it is read.
 MAX_MODEL_BYTES = 2 << 30
