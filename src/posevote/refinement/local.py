@@ -20,7 +20,12 @@ from numpy.typing import NDArray
 
 from posevote.inference.maps import TestMaps
 from posevote.inference.search import ProbeSet, SearchSetup, viewpoint_features
-from posevote.inference.voting import gather_score, gather_score_reference, phi_at
+from posevote.inference.voting import (
+    gather_score,
+    gather_score_reference,
+    phi_at,
+    subsample_features,
+)
 from posevote.model.density import PoseModel
 from posevote.model.kernels import K1_CUTOFF
 from posevote.refinement.fitting import (
@@ -35,8 +40,8 @@ from posevote.results import Hypothesis
 
 def polish_pose(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps, *,
                 viewpoint_kappa: float, use_weights: bool = True, k1_cutoff: float = 0.1,
-                max_shift: float = 8.0, scale_bounds: tuple[float, float] | None = None
-                ) -> Hypothesis:
+                max_shift: float = 8.0, scale_bounds: tuple[float, float] | None = None,
+                max_features: int | None = None) -> Hypothesis:
     """Maximise the exact p(w) around a hypothesis over (alpha, log s, u, v).
 
     A compass search (:func:`_compass_search`, compiled): steps along each
@@ -58,6 +63,10 @@ def polish_pose(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps, *,
     scale_bounds : (float, float) or None, optional
         The scale also stays within these bounds (or, if the hypothesis
         starts outside them, no farther out than it starts).
+    max_features : int or None, optional
+        Polish on at most about this many of the view's features (an even
+        stride, :func:`posevote.inference.voting.subsample_features`); the
+        returned score is then theirs.
 
     Returns
     -------
@@ -70,6 +79,9 @@ def polish_pose(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps, *,
                                k1_cutoff=k1_cutoff)
     if feats.weight.sum() <= 0:
         return hypothesis
+    if max_features is not None:
+        xy, theta, weight = subsample_features(feats.xy, feats.theta, feats.weight, max_features)
+        feats = replace(feats, xy=xy, theta=theta, weight=weight)
     radius = max(float(np.sqrt(np.mean(np.sum(feats.xy**2, axis=1)))) * hypothesis.scale, 1.0)
     # Work in units where one step moves a typical feature by about a pixel.
     unit = np.array([1.0 / radius, 1.0 / radius, 1.0, 1.0])
