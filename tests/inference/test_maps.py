@@ -5,7 +5,16 @@ import numpy as np
 import pytest
 
 from posevote.features import EdgeFeatures
-from posevote.inference.maps import blurred_points, merge_voters, prepare_test, restrict_maps, smooth
+from posevote.inference.maps import (
+    _saturate,
+    _subtract_plane,
+    blurred_points,
+    merge_voters,
+    prepare_test,
+    restrict_maps,
+    saturate_reference,
+    smooth,
+)
 from posevote.inference.voting import accumulate_votes, blur_taps
 
 
@@ -28,6 +37,23 @@ def test_chance_width_subtracts_the_local_chance_level():
     assert raw.density[in_clutter].mean() > 0.3
     assert abs(local.density[in_clutter].mean()) < 0.05
     assert np.all(local.density <= raw.density + 1e-6)
+
+
+@pytest.mark.parametrize(("cap", "chance_width"), [(None, None), (0.6, None), (0.6, 8.0),
+                                                   (None, 8.0)])
+def test_the_saturation_kernels_agree_with_the_numpy_reference(cap, chance_width):
+    rng = np.random.default_rng(3)
+    xy = rng.uniform(0, 100, (600, 2))
+    planes = blurred_points(xy, rng.uniform(0, 1, (16, 600)), (90, 110), 7.0)
+    gain = 35.1
+    expected = planes.copy()
+    chance = saturate_reference(expected, gain, cap, chance_width)
+    mean = np.empty((90, 110), dtype=np.float32)
+    total = _saturate(planes, np.float32(gain), np.float32(-1.0 if cap is None else cap), mean)
+    if chance_width is not None:
+        total = _subtract_plane(planes, smooth(mean, chance_width, cv2.BORDER_REFLECT))
+    np.testing.assert_array_equal(planes, expected)
+    assert total / planes.size == pytest.approx(chance, rel=1e-9)
 
 
 def test_restrict_maps_keeps_the_window_only():
