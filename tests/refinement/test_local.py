@@ -38,6 +38,20 @@ def test_polish_recovers_a_perturbed_pose(scene):
     assert again.scale == pytest.approx(good.scale, rel=0.02)
 
 
+def test_polish_on_a_subset_of_the_features_lands_near_the_full_polish(scene):
+    est, probes, fine, _ = scene
+    kw = dict(viewpoint_kappa=est.viewpoint_kappa_, k1_cutoff=K1_CUTOFF)
+    start = refine_mode(probes, find_modes(probes)[0], fit=False)
+    full = polish_pose(start, est.model_, fine, **kw)
+    # No fewer features than the view has: the same polish.
+    assert polish_pose(start, est.model_, fine, max_features=10**6, **kw) == full
+    few = polish_pose(start, est.model_, fine, max_features=40, **kw)
+    assert few != full
+    assert np.hypot(few.position[0] - full.position[0],
+                    few.position[1] - full.position[1]) < 1.5
+    assert few.scale == pytest.approx(full.scale, rel=0.03)
+
+
 def test_profile_refine_lands_between_training_views(scene):
     est, probes, fine, centre = scene
     modes = find_modes(probes)
