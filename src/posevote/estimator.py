@@ -342,8 +342,10 @@ class PoseEstimator(GroupedParams):
                                     setup)
         verified_box = None
         located = None
+        # The descriptors read single precision: the image converted once, not per box.
+        grey = img.astype(np.float32) if self.appearance is not None else img
         if verifying and self.appearance is not None and probes.score.any():
-            located = verify(probes, img, feats, full, model, self._appearance_model(),
+            located = verify(probes, grey, feats, full, model, self._appearance_model(),
                              self.appearance, setup)
             if located is not None:
                 feats, maps, probes, verified_box = located
@@ -366,7 +368,7 @@ class PoseEstimator(GroupedParams):
                                                self.recognition, fitting=self.fitting,
                                                local=self.local_refinement)
         if self.appearance is not None and hyps:
-            hyps[0] = appearance_refine(hyps[0], img, model, self._appearance_model(),
+            hyps[0] = appearance_refine(hyps[0], grey, model, self._appearance_model(),
                                         self.appearance, verified_box=verified_box)
         kept = tuple(place_all(with_probabilities([h for h in hyps if h.score > self.min_score],
                                                   probes),

@@ -68,7 +68,8 @@ def box_descriptor(image: NDArray[np.floating], box: Sequence[float],
     region = crop_box(image, box)
     if region.shape[0] < 8 or region.shape[1] < 8:
         return None
-    crop = cv2.resize(np.ascontiguousarray(region, dtype=np.float32),
+    # A single-precision image is read in place (OpenCV takes the rows' stride).
+    crop = cv2.resize(region if region.dtype == np.float32 else region.astype(np.float32),
                       (window[1], window[0]), interpolation=cv2.INTER_AREA)
     return hog(crop)
 

@@ -35,7 +35,7 @@ from posevote.results import Hypothesis
 VERIFY_MARGIN = 0.25
 
 
-def verify_candidates(probes: ProbeSet, image: NDArray[np.float64],
+def verify_candidates(probes: ProbeSet, image: NDArray[np.floating],
                       descriptors: NDArray[np.float32], view_azimuth: NDArray[np.float64],
                       view_elevation: NDArray[np.float64], *, window: tuple[int, int],
                       n_candidates: int, tolerance: float,
@@ -263,7 +263,7 @@ def jittered_nearest_view(image: NDArray[np.floating], box: Sequence[float],
     return medoid_view(near[np.argmin(sq, axis=1)].tolist(), view_directions)
 
 
-def verify(probes: ProbeSet, image: NDArray[np.float64], features: EdgeFeatures,
+def verify(probes: ProbeSet, image: NDArray[np.floating], features: EdgeFeatures,
            maps: TestMaps | list[TestMaps], model: PoseModel, appearance: AppearanceModel,
            options: AppearanceOptions, setup: SearchSetup
            ) -> tuple[EdgeFeatures, TestMaps | list[TestMaps | None], ProbeSet,

@@ -30,7 +30,7 @@ from posevote.results import Hypothesis
 APPEARANCE_WINDOW_DEG = 45.0
 
 
-def appearance_refine(hypothesis: Hypothesis, image: NDArray[np.float64], model: PoseModel,
+def appearance_refine(hypothesis: Hypothesis, image: NDArray[np.floating], model: PoseModel,
                       appearance: AppearanceModel, options: AppearanceOptions, *,
                       verified_box: tuple[float, float, float, float] | None = None
                       ) -> Hypothesis:
