@@ -323,7 +323,7 @@ def test_scikit_learn_contract():
     assert copy is not est and copy.get_params() == est.get_params()
     assert copy.search.scale_steps == 4 and copy.search.viewpoint_step_deg == 10.0
     deep = est.get_params(deep=True)
-    assert deep["search__scale_steps"] == 4 and deep["appearance__candidates"] == 80
+    assert deep["search__scale_steps"] == 4 and deep["appearance__candidates"] == 40
     assert "search__scale_steps" not in est.get_params(deep=False)
     assert isinstance(est.get_params()["search"].scale_range, tuple)
     assert repr(PoseEstimator()) == "PoseEstimator()"
