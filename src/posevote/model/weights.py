@@ -103,12 +103,15 @@ def _instance_weights(xy: NDArray[np.float64], theta: NDArray[np.float64],
     if m * k_views <= dense_cells:
         # psi~_k(x_i) for every feature and view at once: the strongest
         # response among the features of view k (0 where none is near).
-        psi_all = np.zeros((m, k_views))
-        _strongest_responses(np.ascontiguousarray(xy, dtype=np.float64),
+        # The strongest response is the exponential of the largest exponent:
+        # one exponential per table cell instead of one per pair.
+        psi_all = np.full((m, k_views), -np.inf)
+        _strongest_exponents(np.ascontiguousarray(xy, dtype=np.float64),
                              np.ascontiguousarray(theta, dtype=np.float64),
                              np.ascontiguousarray(view, dtype=np.int64),
                              np.ascontiguousarray(pairs, dtype=np.int64), float(position_sigma),
                              float(orientation_kappa), psi_all)
+        np.exp(psi_all, out=psi_all)
         k1_views = viewpoint_kernel(directions[:, None, :], directions[None, :, :],
                                     viewpoint_kappa)
         ambiguity = np.einsum("ik,ik->i", psi_all, 1.0 - k1_views[view]) / k_views
@@ -133,23 +136,24 @@ def _instance_weights(xy: NDArray[np.float64], theta: NDArray[np.float64],
 
 
 @numba.njit(cache=True, nogil=True)
-def _strongest_responses(xy, theta, view, pairs, sigma, kappa, psi):  # pragma: no cover
-    """``psi[i, k]``: the strongest kernel response at feature i of any feature of view k.
+def _strongest_exponents(xy, theta, view, pairs, sigma, kappa, out):  # pragma: no cover
+    """``out[i, k]``: the log of the strongest kernel response at feature i of any
+    feature of view k (``out`` starts at -inf).
 
     ``pairs`` are the feature pairs within reach (each once); a feature's
     response to itself is 1.
     """
     for a in range(xy.shape[0]):
-        psi[a, view[a]] = 1.0
+        out[a, view[a]] = 0.0
     inv = 1.0 / (2.0 * sigma * sigma)
     for p in range(pairs.shape[0]):
         a = pairs[p, 0]
         b = pairs[p, 1]
         dx = xy[a, 0] - xy[b, 0]
         dy = xy[a, 1] - xy[b, 1]
-        # Both kernels under one exponential (a fifth of the time).
-        r = np.exp(kappa * (np.cos(2.0 * (theta[a] - theta[b])) - 1.0) - (dx * dx + dy * dy) * inv)
-        if r > psi[a, view[b]]:
-            psi[a, view[b]] = r
-        if r > psi[b, view[a]]:
-            psi[b, view[a]] = r
+        # Both kernels' exponents summed.
+        r = kappa * (np.cos(2.0 * (theta[a] - theta[b])) - 1.0) - (dx * dx + dy * dy) * inv
+        if r > out[a, view[b]]:
+            out[a, view[b]] = r
+        if r > out[b, view[a]]:
+            out[b, view[a]] = r
