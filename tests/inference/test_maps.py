@@ -6,16 +6,18 @@ import pytest
 
 from posevote.features import EdgeFeatures
 from posevote.inference.maps import (
+    _refine,
     _saturate,
     _subtract_plane,
     blurred_points,
+    map_grid,
     merge_voters,
     prepare_test,
     restrict_maps,
     saturate_reference,
     smooth,
 )
-from posevote.inference.voting import accumulate_votes, blur_taps
+from posevote.inference.voting import accumulate_votes, blur_taps, density_at
 
 
 def test_chance_width_subtracts_the_local_chance_level():
@@ -47,36 +49,45 @@ def test_the_saturation_kernels_agree_with_the_numpy_reference(cap, chance_width
     planes = blurred_points(xy, rng.uniform(0, 1, (16, 600)), (90, 110), 7.0)
     gain = 35.1
     expected = planes.copy()
-    chance = saturate_reference(expected, gain, cap, chance_width)
-    mean = np.empty((90, 110), dtype=np.float32)
-    total = _saturate(planes, np.float32(gain), np.float32(-1.0 if cap is None else cap), mean)
+    saturate_reference(expected, gain, cap, chance_width)
+    mean = np.empty(planes.shape[1:], dtype=np.float32)
+    _saturate(planes, np.float32(gain), np.float32(-1.0 if cap is None else cap), mean)
     if chance_width is not None:
-        total = _subtract_plane(planes, smooth(mean, chance_width, cv2.BORDER_REFLECT))
+        _subtract_plane(planes, smooth(mean, chance_width, cv2.BORDER_REFLECT))
     np.testing.assert_array_equal(planes, expected)
-    assert total / planes.size == pytest.approx(chance, rel=1e-9)
 
 
-def test_restrict_maps_keeps_the_window_only():
+@pytest.mark.parametrize("sigma", [2.0, 9.5])
+def test_restrict_maps_keeps_the_window_only(sigma):
     # Features only at a few orientations, so that the last orientation bins
     # are empty (the bin bookkeeping must cope).
     rng = np.random.default_rng(5)
     xy = rng.uniform(0, 120, (80, 2))
     theta = rng.choice([0.1, 0.5, 1.0], 80)
     feats = EdgeFeatures(xy=xy, theta=theta)
-    maps = prepare_test(feats, (120, 120), position_sigma=2.0, orientation_kappa=8.0)
+    kw = {"position_sigma": sigma, "orientation_kappa": 8.0}
+    maps = prepare_test(feats, (120, 120), **kw)
     lo, hi = np.array([30.0, 40.0]), np.array([80.0, 90.0])
     sub = restrict_maps(maps, lo, hi)
+    assert sub.window == (30.0, 40.0, 80.0, 90.0) and sub.density is maps.density
     inside = np.all((xy >= lo) & (xy <= hi), axis=1)
-    alone = prepare_test(feats.select(inside), (120, 120), position_sigma=2.0,
-                         orientation_kappa=8.0)
+    alone = prepare_test(feats.select(inside), (120, 120), **kw)
     np.testing.assert_array_equal(sub.bin_start, alone.bin_start)
     np.testing.assert_allclose(np.sort(sub.xy, axis=0), np.sort(alone.xy, axis=0))
-    assert not sub.density[:, :40, :].any() and not sub.density[:, :, 82:].any()
-    # Away from the window's border the masked density is the one prepared anew.
-    np.testing.assert_allclose(sub.density[:, 50:80, 40:70], alone.density[:, 50:80, 40:70],
-                               atol=1e-3)
+    v, u = np.mgrid[0:120, 0:120]
+    pixels = np.stack([u.ravel(), v.ravel()], axis=1).astype(float)
+    at = np.full(len(pixels), 0.5)
+    read, fresh = density_at(sub, pixels, at), density_at(alone, pixels, at)
+    outside = (pixels[:, 0] < 30) | (pixels[:, 1] < 40) | (pixels[:, 0] >= 80) | (pixels[:, 1] >= 90)
+    assert not read[outside].any()
+    # Away from the window's border phi is the one prepared anew.
+    far = np.all((pixels >= lo + 3 * sigma) & (pixels <= hi - 3 * sigma), axis=1)
+    np.testing.assert_allclose(read[far], fresh[far], atol=1e-3)
     assert 0 < sub.chance < maps.chance
-    assert sub.chance == pytest.approx(float(sub.density.mean(dtype=np.float64)), rel=1e-12)
+    if sigma < 6:
+        window = maps.density[:, 40:91, 30:81]
+        assert sub.chance == pytest.approx(float(window.sum(dtype=np.float64)) / maps.density.size,
+                                           rel=1e-12)
 
 
 def _gaussian_sum(xy, shape, sigma):
@@ -92,7 +103,11 @@ def test_blurred_points_is_a_sum_of_gaussians(sigma):
     # grid, within 3%.
     rng = np.random.default_rng(2)
     xy = rng.uniform((40, 40), (160, 110), (6, 2))
-    got = blurred_points(xy, np.ones(len(xy)), (150, 200), sigma)
+    k, *grid = map_grid(sigma, (150, 200))
+    planes = blurred_points(xy, np.ones(len(xy)), (150, 200), sigma)
+    assert planes.shape == tuple(grid)
+    # Read at the pixels as the kernels read them.
+    got = _refine(planes, k, (150, 200))
     want = _gaussian_sum(xy, (150, 200), sigma)
     assert got.dtype == np.float32 and got.shape == (150, 200)
     tolerance = 0.25 if sigma < 6 else 0.03

@@ -1,16 +1,19 @@
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
 from posevote.features import EdgeFeatures
 from posevote.inference.maps import prepare_test
 from posevote.inference.voting import (
-    _prepare_pose,
-    _shifted_score,
     accumulate_votes,
     accumulate_votes_reference,
+    density_at,
     gather_score,
     gather_score_reference,
+    place_features,
     search_translations,
+    shifted_score,
     strongest_voters,
 )
 
@@ -44,19 +47,23 @@ def test_votes_kernel_matches_reference(scene):
     assert np.allclose(acc, ref, atol=1e-12)
 
 
-@pytest.mark.parametrize("t", [(70.0, 50.0), (71.3, 48.6), (5.0, 5.0)])
-def test_score_kernels_match_reference(scene, t):
+@pytest.mark.parametrize("sigma", [2.0, 9.5])
+@pytest.mark.parametrize("t", [(70.0, 50.0), (71.3, 48.6), (5.0, 5.0), (118.5, 98.7)])
+def test_score_kernels_match_reference(scene, t, sigma):
     train_xy, train_theta, train_w, alpha, scale, _, maps = scene
-    got = gather_score(maps.density, train_xy, train_theta, train_w, alpha, scale, *t)
-    ref = gather_score_reference(maps.density, train_xy, train_theta, train_w, alpha, scale, *t)
+    # A wide kernel's maps are on a grid of 3-pixel cells.
+    maps = prepare_test(EdgeFeatures(xy=maps.xy, theta=maps.theta), (100, 120),
+                        position_sigma=sigma, orientation_kappa=8.0)
+    assert maps.grid == (1 if sigma < 6 else 3)
+    got = gather_score(maps.density, maps.frame, train_xy, train_theta, train_w, alpha, scale, *t)
+    ref = gather_score_reference(maps, train_xy, train_theta, train_w, alpha, scale, *t)
     assert got == pytest.approx(ref, rel=1e-9, abs=1e-12)
     m = len(train_w)
-    base, frac = np.empty((m, 2), np.int64), np.empty((m, 4))
-    obins, ofrac = np.empty((m, 2), np.int64), np.empty(m)
-    _prepare_pose(maps.density, train_xy, train_theta, train_w, alpha, scale, t[0] - 2, t[1] + 1,
-                  base, frac, obins, ofrac)
-    assert _shifted_score(maps.density, train_w, base, frac, obins, ofrac, 2, -1) == pytest.approx(
-        got, rel=1e-9, abs=1e-12)
+    px, py, obins, ofrac = np.empty(m), np.empty(m), np.empty((m, 2), np.int64), np.empty(m)
+    place_features(maps.density.shape[0], train_xy, train_theta, alpha, scale, t[0] - 2, t[1] + 1,
+                   px, py, obins, ofrac)
+    assert shifted_score(maps.density, maps.frame, train_w, px, py, obins, ofrac, 2, -1, 1
+                         ) == pytest.approx(got, rel=1e-9, abs=1e-12)
 
 
 def test_search_finds_the_translation(scene):
@@ -85,7 +92,7 @@ def test_search_on_a_feature_subset(scene):
     assert np.unravel_index(np.argmax(score), score.shape) == (1, 1)
     assert trans[1, 1] == pytest.approx(t, abs=0.5)
     assert score[1, 1] == pytest.approx(full[0][1, 1], rel=0.1)
-    ref = gather_score(maps.density, train_xy[::2], train_theta[::2],
+    ref = gather_score(maps.density, maps.frame, train_xy[::2], train_theta[::2],
                        train_w[::2] / train_w[::2].sum(), alpha, scale, *trans[1, 1])
     # (the search's peak value is interpolated between pixels, hence rel 1e-2)
     assert score[1, 1] == pytest.approx(ref, rel=1e-2)
@@ -125,8 +132,9 @@ def test_an_unpolished_search_keeps_the_exact_score_at_the_vote_cell(scene):
     # On the vote lattice, within a cell of the peak, scored there exactly.
     assert np.allclose(trans / 2.5, np.round(trans / 2.5))
     assert np.all(np.abs(trans[1, 1] - t) <= 2.5)
-    assert score[1, 1] == pytest.approx(gather_score(maps.density, train_xy, train_theta, train_w,
-                                                     alpha, scale, *trans[1, 1]), rel=1e-9)
+    assert score[1, 1] == pytest.approx(gather_score(maps.density, maps.frame, train_xy,
+                                                     train_theta, train_w, alpha, scale,
+                                                     *trans[1, 1]), rel=1e-9)
     # The polish climbs from there to the peak.
     assert 0.8 * polished[0][1, 1] < score[1, 1] <= polished[0][1, 1]
 
@@ -144,6 +152,15 @@ def test_density_options_and_chance(scene):
 
     *_, maps = scene
     assert maps.chance == pytest.approx(float(maps.density.mean()))
+    # On a coarse grid, the mean of phi read at every pixel.
+    wide = prepare_test(EdgeFeatures(xy=maps.xy, theta=maps.theta), (100, 120),
+                        position_sigma=9.5, orientation_kappa=8.0)
+    v, u = np.mgrid[0:100, 0:120]
+    pixels = np.stack([u.ravel(), v.ravel()], axis=1).astype(float)
+    everywhere = replace(wide, window=(0.0, 0.0, 120.0, 100.0))
+    read = [density_at(everywhere, pixels, np.full(len(pixels), th))
+            for th in (np.arange(16) + 0.5) * np.pi / 16]
+    assert wide.chance == pytest.approx(float(np.mean(read)), rel=1e-6)
     assert 0 < maps.chance < 0.5
     feats = EdgeFeatures(xy=maps.xy, theta=maps.theta)
     capped = prepare_test(feats, (100, 120), position_sigma=2.0, orientation_kappa=8.0,

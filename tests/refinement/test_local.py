@@ -165,19 +165,21 @@ def test_compass_search_kernel_agrees_with_reference():
     start = np.array([0.05, np.log(1.0), 60.0, 50.0])
     unit = np.array([1 / 25, 1 / 25, 1.0, 1.0])
     bounds = np.array([-np.inf, np.inf])
-    z, best, initial = _compass_search(maps.density, model_xy, model_theta, weight, start, unit,
-                                       bounds, 8.0)
-    z_ref, best_ref, initial_ref = compass_search_reference(maps.density, model_xy, model_theta,
-                                                            weight, start, unit, bounds, 8.0)
+    z, best, initial = _compass_search(maps.density, maps.frame, model_xy, model_theta, weight,
+                                       start, unit, bounds, 8.0)
+    z_ref, best_ref, initial_ref = compass_search_reference(maps, model_xy, model_theta, weight,
+                                                            start, unit, bounds, 8.0)
     np.testing.assert_allclose(z, z_ref, atol=1e-9)
     assert best == pytest.approx(best_ref, rel=1e-9) and initial == pytest.approx(initial_ref)
     # It climbs to the true pose, and the score it reports is the score there.
     found = start + z * unit
     assert best > initial
     assert np.all(np.abs(found - [alpha, np.log(scale), *t]) <= [0.02, 0.02, 0.5, 0.5])
-    assert best == pytest.approx(gather_score(maps.density, model_xy, model_theta, weight,
-                                              found[0], np.exp(found[1]), found[2], found[3]))
+    assert best == pytest.approx(gather_score(maps.density, maps.frame, model_xy, model_theta,
+                                              weight, found[0], np.exp(found[1]), found[2],
+                                              found[3]))
     # Within its bounds.
     tight = np.array([-0.01, 0.01])
-    z, *_ = _compass_search(maps.density, model_xy, model_theta, weight, start, unit, tight, 8.0)
+    z, *_ = _compass_search(maps.density, maps.frame, model_xy, model_theta, weight, start, unit,
+                            tight, 8.0)
     assert abs(start[1] + z[1] * unit[1]) <= 0.01 + 1e-12 and np.all(np.abs(z) <= 8.0)

@@ -77,10 +77,10 @@ def coverage(model_xy: NDArray[np.float64], model_theta: NDArray[np.float64],
                        orientation_kappa=ORIENTATION_KAPPA, edge_spacing=edge_spacing / cell)
     # A pooled model stacks several views' features on each contour: its
     # typical density on itself is what "explained" means.
-    typical = float(np.median(density_at(own.density, placed.xy, placed.theta)))
+    typical = float(np.median(density_at(own, placed.xy, placed.theta)))
     if not typical > 0:
         return 0.0
-    values = density_at(own.density, (maps.xy[inside] - origin) / cell, maps.theta[inside])
+    values = density_at(own, (maps.xy[inside] - origin) / cell, maps.theta[inside])
     return float(np.mean(np.minimum(values / typical, 1.0)))
 
 

@@ -11,7 +11,7 @@ pyramid). The kernels that read them are in :mod:`posevote.inference.voting`.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numba
@@ -44,9 +44,19 @@ class TestMaps:
         density is that of the features, at a fraction of the pairs).
     bin_start : ndarray of int, shape (n_vote_bins + 1,)
         Start of each orientation bin in the voters.
-    density : ndarray, shape (n_density_bins, H, W), float32
-        Test density phi (Eq. 2, peak-1 kernels) at every pixel for
-        ``n_density_bins`` evenly spaced orientations.
+    density : ndarray, shape (n_density_bins, GH, GW), float32
+        Test density phi (Eq. 2, peak-1 kernels) for ``n_density_bins``
+        evenly spaced orientations, on a grid of ``grid x grid`` pixel cells
+        (cell ``i`` centred on pixel ``grid * i + (grid - 1) / 2``) and read
+        bilinearly (:func:`posevote.inference.voting.phi_at`).
+    grid : int
+        Pixels per cell of ``density``: 1 for narrow kernels, more for wide
+        ones (which a coarse grid resolves, for a ninth of the memory).
+    shape : (int, int)
+        Image shape (H, W), pixels.
+    window : (float, float, float, float)
+        ``(u_lo, v_lo, u_hi, v_hi)``, pixels: phi is read where
+        ``u_lo <= u < u_hi`` and ``v_lo <= v < v_hi``, and is 0 elsewhere.
     lut : ndarray
         Orientation kernel tabulated over ``[0, pi/2]``.
     vote_radius : int
@@ -54,9 +64,9 @@ class TestMaps:
     position_sigma : float
         Position kernel width of ``density``, pixels.
     chance : float
-        Mean of ``density`` over pixels and orientations: the expected score
-        of a model dropped at random on the image (its edges explain that
-        fraction by chance).
+        Mean of phi over the image's pixels and orientations: the expected
+        score of a model dropped at random on the image (its edges explain
+        that fraction by chance).
     """
 
     xy: NDArray[np.float64]
@@ -66,15 +76,19 @@ class TestMaps:
     vote_weight: NDArray[np.float64]
     bin_start: NDArray[np.int64]
     density: NDArray[np.float32]
+    grid: int
+    shape: tuple[int, int]
+    window: tuple[float, float, float, float]
     lut: NDArray[np.float64]
     vote_radius: int
     position_sigma: float
     chance: float = 0.0
 
     @property
-    def shape(self) -> tuple[int, int]:
-        """Image shape (H, W)."""
-        return int(self.density.shape[1]), int(self.density.shape[2])
+    def frame(self) -> NDArray[np.float64]:
+        """``(*window, grid, (grid - 1) / 2, 1 / grid)`` as the compiled readers take it
+        (:func:`posevote.inference.voting.phi_at`)."""
+        return np.array([*self.window, self.grid, 0.5 * (self.grid - 1), 1.0 / self.grid])
 
 
 def prepare_test(features: EdgeFeatures, shape: tuple[int, int], *, position_sigma: float,
@@ -121,7 +135,8 @@ def prepare_test(features: EdgeFeatures, shape: tuple[int, int], *, position_sig
     TestMaps
     """
     h, w = shape
-    need = density_bins * h * w * 4
+    k, gh, gw = map_grid(position_sigma, shape)
+    need = density_bins * gh * gw * 4
     if need > MAX_MAP_BYTES:
         raise ValueError(f"the test maps of a {w} x {h} image (scaled) take {need / 2**30:.1f} "
                          f"GiB, over the limit of {MAX_MAP_BYTES / 2**30:.0f} GiB; downscale the "
@@ -135,34 +150,35 @@ def prepare_test(features: EdgeFeatures, shape: tuple[int, int], *, position_sig
     strength = weight[None, :] * orientation_kernel(features.theta[None, :] - centres[:, None],
                                                     orientation_kappa)
     density = blurred_points(features.xy, strength, shape, position_sigma)
-    mean = np.empty(shape, dtype=np.float32)
-    total = _saturate(density, np.float32(gain),
-                      np.float32(-1.0 if density_cap is None else density_cap), mean)
+    mean = np.empty(density.shape[1:], dtype=np.float32)
+    # On the grid: the cap and the chance level apply to its cells, which the
+    # readers interpolate (a cap between cells is the interpolated caps).
+    _saturate(density, np.float32(gain), np.float32(-1.0 if density_cap is None else density_cap),
+              mean)
     if chance_width is not None:
-        # Reflected at the border, so that the image's edge is not a clearing.
-        total = _subtract_plane(density, smooth(mean, chance_width, cv2.BORDER_REFLECT))
+        _subtract_plane(density, chance_plane(mean, k, shape, chance_width))
     lut = orientation_kernel(np.linspace(0.0, np.pi / 2, _LUT_SIZE), orientation_kappa)
     cut = orientation_cutoff(orientation_kappa, vote_cutoff)
     radius = int(np.ceil(cut / (np.pi / vote_bins)))
     vote_xy, vote_theta, vote_weight, bin_start = merge_voters(
         features, weight, vote_bins, VOTER_CELLS * vote_cell(position_sigma))
+    window = (0.0, 0.0, float(w - 1), float(h - 1))
     return TestMaps(xy=features.xy.copy(), theta=features.theta.copy(), vote_xy=vote_xy,
                     vote_theta=vote_theta, vote_weight=vote_weight, bin_start=bin_start,
-                    density=density, lut=np.where(lut >= vote_cutoff, lut, 0.0),
+                    density=density, grid=k, shape=(h, w), window=window,
+                    lut=np.where(lut >= vote_cutoff, lut, 0.0),
                     vote_radius=min(radius, vote_bins // 2), position_sigma=float(position_sigma),
-                    chance=total / density.size)
+                    chance=window_mean(density, k, shape, window))
 
 
-# Two passes over the planes where numpy took five (the maps' largest cost
-# after the blur); saturate_reference is the numpy they replace.
+# Two passes over the planes where numpy took five; saturate_reference is
+# the numpy they replace.
 @numba.njit(cache=True, nogil=True)
 def _saturate(density, gain, cap, mean):  # pragma: no cover - compiled
     """``density`` times ``gain``, capped at ``cap`` (none if negative), in place; its
-    mean over the planes into ``mean`` (float32, the planes added in order); the sum
-    of the result."""
+    mean over the planes into ``mean`` (float32, the planes added in order)."""
     n, h, w = density.shape
     mean[:, :] = 0.0
-    total = 0.0
     for b in range(n):
         for r in range(h):
             for c in range(w):
@@ -171,37 +187,74 @@ def _saturate(density, gain, cap, mean):  # pragma: no cover - compiled
                     v = cap
                 density[b, r, c] = v
                 mean[r, c] += v
-                total += v
     for r in range(h):
         for c in range(w):
             mean[r, c] /= n
-    return total
 
 
 @numba.njit(cache=True, nogil=True)
 def _subtract_plane(density, plane):  # pragma: no cover - compiled
-    """``plane`` subtracted from every plane of ``density`` in place; the sum of the result."""
+    """``plane`` subtracted from every plane of ``density`` in place."""
     n, h, w = density.shape
-    total = 0.0
     for b in range(n):
         for r in range(h):
             for c in range(w):
-                v = density[b, r, c] - plane[r, c]
-                density[b, r, c] = v
-                total += v
-    return total
+                density[b, r, c] -= plane[r, c]
 
 
 def saturate_reference(density: NDArray[np.float32], gain: float, cap: float | None,
-                       chance_width: float | None) -> float:
+                       chance_width: float | None) -> None:
     """Pure-numpy :func:`_saturate` and :func:`_subtract_plane` as :func:`prepare_test`
-    applies them (in place); returns the mean of the result (for tests)."""
+    applies them, in place (for tests); ``chance_width`` in the planes' cells."""
     density *= np.float32(gain)
     if cap is not None:
         np.minimum(density, np.float32(cap), out=density)
     if chance_width is not None:
         density -= smooth(density.mean(axis=0), chance_width, cv2.BORDER_REFLECT)[None]
-    return float(density.mean(dtype=np.float64))
+
+
+def chance_plane(mean: NDArray[np.float32], k: int, shape: tuple[int, int], width: float
+                 ) -> NDArray[np.float32]:
+    """The local chance level at the grid's cells: ``mean`` (phi's mean over orientations, on
+    the grid) blurred at ``width`` pixels.
+
+    Blurred at the pixels, reflected at the image's border (so that its edge
+    is not a clearing), and read back at the cells' centres.
+    """
+    if k == 1:
+        return smooth(mean, width, cv2.BORDER_REFLECT)
+    gh, gw = mean.shape
+    pixels = smooth(_refine(mean, k, shape), width, cv2.BORDER_REFLECT)
+    pad = cv2.copyMakeBorder(pixels, 0, gh * k - shape[0], 0, gw * k - shape[1],
+                             cv2.BORDER_REPLICATE)
+    return np.ascontiguousarray(pad[(k - 1) // 2::k, (k - 1) // 2::k])
+
+
+def _pixel_shares(n_cells: int, k: int, lo: int, hi: int) -> NDArray[np.float64]:
+    """Each cell's total share in the bilinear reading of pixels ``lo`` to ``hi`` (inclusive)
+    along one axis of a grid of ``k``-pixel cells."""
+    out = np.zeros(n_cells)
+    if hi < lo:
+        return out
+    if k == 1:
+        out[lo:hi + 1] = 1.0
+        return out
+    g = np.maximum((np.arange(lo, hi + 1) + 0.5) / k - 0.5, 0.0)
+    c0 = g.astype(np.int64)
+    f = g - c0
+    return (np.bincount(c0, weights=1.0 - f, minlength=n_cells)[:n_cells]
+            + np.bincount(c0 + 1, weights=f, minlength=n_cells)[:n_cells])
+
+
+def window_mean(density: NDArray[np.float32], k: int, shape: tuple[int, int],
+                window: tuple[float, float, float, float]) -> float:
+    """The sum of phi over the window's pixels (its edges included) and the orientations,
+    divided by the image's pixels and orientations: the maps' chance level."""
+    n, gh, gw = density.shape
+    cols = _pixel_shares(gw, k, int(window[0]), int(window[2]))
+    rows = _pixel_shares(gh, k, int(window[1]), int(window[3]))
+    total = float(np.einsum("bij,i,j->", density, rows, cols, dtype=np.float64))
+    return total / (n * shape[0] * shape[1])
 
 
 #: Smoothing runs on a grid coarse enough that the kernel still spans this
@@ -227,16 +280,29 @@ def _refine(coarse: NDArray[np.float32], k: int, shape: tuple[int, int]) -> NDAr
     return np.asarray(fine[:shape[0], :shape[1]])
 
 
+def map_grid(sigma: float, shape: tuple[int, int]) -> tuple[int, int, int]:
+    """The grid :func:`blurred_points` tabulates a kernel of width ``sigma`` on: ``k`` pixels
+    a cell, and its shape.
+
+    Pixels for narrow kernels (``k`` = 1); for wide ones the smoothing
+    grid and one cell more each way, so that bilinear reading of the last
+    pixels stays inside it.
+    """
+    k, hs, ws = _coarse_grid(sigma, shape)
+    return (1, *shape) if k == 1 else (k, hs + 1, ws + 1)
+
+
 def blurred_points(xy: NDArray[np.float64], values: NDArray[np.float64], shape: tuple[int, int],
                    sigma: float) -> NDArray[np.float32]:
-    """Points of mass ``values`` at ``xy`` blurred by a unit-sum Gaussian of width ``sigma``.
+    """Points of mass ``values`` at ``xy`` blurred by a unit-sum Gaussian of width ``sigma``,
+    on the grid of :func:`map_grid`.
 
     Narrow kernels (``sigma < 2 MIN_SMOOTH_CELLS``) blur the points rounded
     to their pixels. Wider ones splat the points bilinearly on a grid of
-    ``k x k`` blocks (which keeps their centroid), blur at ``sigma / k`` and
-    interpolate back: the cost of a few taps instead of ``6 sigma``, within
-    about 3% of the exact sum of Gaussians where rounding to the pixels errs
-    by 3-5%. Outside the image the plane is 0.
+    ``k x k`` blocks (which keeps their centroid) and blur at ``sigma / k``:
+    the cost of a few taps instead of ``6 sigma``, and read bilinearly
+    within about 3% of the exact sum of Gaussians, where rounding to the
+    pixels errs by 3-5%. Outside the image the plane is 0.
 
     Parameters
     ----------
@@ -246,18 +312,19 @@ def blurred_points(xy: NDArray[np.float64], values: NDArray[np.float64], shape: 
         The points' masses; one row per plane for several planes of the
         same points (their places are worked out once).
     shape : (int, int)
-        Plane shape (H, W).
+        Image shape (H, W).
     sigma : float
         Kernel width, pixels.
 
     Returns
     -------
-    ndarray, shape (H, W) or (B, H, W), float32
+    ndarray, shape (GH, GW) or (B, GH, GW), float32
+        The blurred points at the grid's cells (the density per pixel).
     """
     h, w = shape
     rows_of = np.atleast_2d(values)
-    out = np.empty((len(rows_of), h, w), dtype=np.float32)
-    k, hs, ws = _coarse_grid(sigma, shape)
+    k, gh, gw = map_grid(sigma, shape)
+    out = np.empty((len(rows_of), gh, gw), dtype=np.float32)
     if k == 1:
         cols = np.clip(np.rint(xy[:, 0]).astype(np.int64), 0, w - 1)
         rows = np.clip(np.rint(xy[:, 1]).astype(np.int64), 0, h - 1)
@@ -266,13 +333,13 @@ def blurred_points(xy: NDArray[np.float64], values: NDArray[np.float64], shape: 
             out[b] = cv2.GaussianBlur(plane.astype(np.float32).reshape(h, w), (0, 0), sigma,
                                       borderType=cv2.BORDER_CONSTANT)
         return out if np.ndim(values) == 2 else out[0]
-    gx = np.clip((xy[:, 0] + 0.5) / k - 0.5, 0.0, ws - 1.0)
-    gy = np.clip((xy[:, 1] + 0.5) / k - 0.5, 0.0, hs - 1.0)
-    c0 = np.minimum(gx.astype(np.int64), max(ws - 2, 0))
-    r0 = np.minimum(gy.astype(np.int64), max(hs - 2, 0))
+    gx = np.clip((xy[:, 0] + 0.5) / k - 0.5, 0.0, gw - 1.0)
+    gy = np.clip((xy[:, 1] + 0.5) / k - 0.5, 0.0, gh - 1.0)
+    c0 = np.minimum(gx.astype(np.int64), gw - 2)
+    r0 = np.minimum(gy.astype(np.int64), gh - 2)
     fx, fy = gx - c0, gy - r0
-    c1, r1 = np.minimum(c0 + 1, ws - 1), np.minimum(r0 + 1, hs - 1)
-    index = np.concatenate([r0 * ws + c0, r0 * ws + c1, r1 * ws + c0, r1 * ws + c1])
+    c1, r1 = c0 + 1, r0 + 1
+    index = np.concatenate([r0 * gw + c0, r0 * gw + c1, r1 * gw + c0, r1 * gw + c1])
     ax, ay = 1 - fx, 1 - fy
     # The splat spreads a point by k^2 / 6 (px^2) on average: blurred that much less.
     width = np.sqrt(sigma**2 - k * k / 6.0) / k
@@ -280,10 +347,9 @@ def blurred_points(xy: NDArray[np.float64], values: NDArray[np.float64], shape: 
         # Each block holds k^2 pixels' mass: its blurred value is k^2 the pixels'.
         v = row / (k * k)
         mass = np.concatenate([v * ax * ay, v * fx * ay, v * ax * fy, v * fx * fy])
-        splat = np.bincount(index, weights=mass, minlength=hs * ws).astype(np.float32)
-        coarse = np.asarray(cv2.GaussianBlur(splat.reshape(hs, ws), (0, 0), width,
-                                             borderType=cv2.BORDER_CONSTANT), dtype=np.float32)
-        out[b] = _refine(coarse, k, shape)
+        splat = np.bincount(index, weights=mass, minlength=gh * gw).astype(np.float32)
+        out[b] = cv2.GaussianBlur(splat.reshape(gh, gw), (0, 0), width,
+                                  borderType=cv2.BORDER_CONSTANT)
     return out if np.ndim(values) == 2 else out[0]
 
 
@@ -368,11 +434,11 @@ def restrict_maps(maps: TestMaps, lo: NDArray[np.float64], hi: NDArray[np.float6
                   ) -> TestMaps:
     """The maps of the test features inside the rectangle ``lo``-``hi`` only.
 
-    Features outside are dropped and the density outside is set to 0, so
-    that the search finds the object inside the rectangle (what preparing
-    the maps again from those features would give, but for the kernel's
-    spill across the border, at the cost of a mask). The chance level is
-    that of the restricted density.
+    Features outside are dropped and phi is read inside the rectangle only
+    (0 outside), so that the search finds the object inside it (what
+    preparing the maps again from those features would give, but for the
+    kernel's spill across the border). The planes are shared, not copied.
+    The chance level is that of the restricted phi.
 
     Parameters
     ----------
@@ -391,22 +457,13 @@ def restrict_maps(maps: TestMaps, lo: NDArray[np.float64], hi: NDArray[np.float6
     bins = np.repeat(np.arange(n_bins), np.diff(maps.bin_start))
     counts = np.bincount(bins[voting], minlength=n_bins)
     bin_start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
-    h, w = maps.shape
-    c0, r0 = (max(int(np.floor(x)), 0) for x in lo)
-    c1, r1 = min(int(np.ceil(hi[0])) + 1, w), min(int(np.ceil(hi[1])) + 1, h)
-    # Zeroed pages from the system (calloc): those outside the window are never
-    # touched, not even by the mean, which is the window's sum over the whole.
-    density = np.zeros(maps.density.shape, dtype=maps.density.dtype)
-    total = 0.0
-    if c1 > c0 and r1 > r0:
-        window = maps.density[:, r0:r1, c0:c1]
-        density[:, r0:r1, c0:c1] = window
-        total = float(window.sum(dtype=np.float64))
-    return TestMaps(xy=maps.xy[inside], theta=maps.theta[inside], vote_xy=maps.vote_xy[voting],
-                    vote_theta=maps.vote_theta[voting], vote_weight=maps.vote_weight[voting],
-                    bin_start=bin_start, density=density, lut=maps.lut,
-                    vote_radius=maps.vote_radius, position_sigma=maps.position_sigma,
-                    chance=total / density.size)
+    u_lo, v_lo, u_hi, v_hi = maps.window
+    window = (max(float(np.floor(lo[0])), u_lo), max(float(np.floor(lo[1])), v_lo),
+              min(float(np.ceil(hi[0])), u_hi), min(float(np.ceil(hi[1])), v_hi))
+    return replace(maps, xy=maps.xy[inside], theta=maps.theta[inside],
+                   vote_xy=maps.vote_xy[voting], vote_theta=maps.vote_theta[voting],
+                   vote_weight=maps.vote_weight[voting], bin_start=bin_start, window=window,
+                   chance=window_mean(maps.density, maps.grid, maps.shape, window))
 
 
 def scaled_features(features: EdgeFeatures, shape: tuple[int, int], scale: float

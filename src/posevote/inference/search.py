@@ -228,7 +228,8 @@ def scale_maps(features: EdgeFeatures, shape: tuple[int, int], setup: SearchSetu
 
 
 def map_bytes(shape: tuple[int, int], options: SearchOptions) -> int:
-    """The memory the search's test maps of an image of ``shape`` take, bytes."""
+    """The most memory the search's test maps of an image of ``shape`` take, bytes (planes
+    of pixels; a wide kernel's coarse grid takes less)."""
     h, w = shape
     if not options.object_kernel:
         return 16 * h * w * 4

@@ -129,15 +129,14 @@ def accumulate_votes_reference(train_xy, train_theta, train_w, alpha, scale, tes
 # --- kernel 2: exact score --------------------------------------------------------
 
 @numba.njit(cache=True, nogil=True)
-def gather_score(density, train_xy, train_theta, train_w, alpha, scale, tu, tv
+def gather_score(density, frame, train_xy, train_theta, train_w, alpha, scale, tu, tv
                  ):  # pragma: no cover - compiled
     """Sum of ``wt_i * phi(T_w x_i)`` with ``T_w`` = (alpha, scale, (tu, tv)).
 
-    ``phi`` is read from the tabulated maps with bilinear interpolation in
-    position and linear interpolation in orientation; outside the image it
-    is 0.
+    ``phi`` is read from the tabulated maps (``frame``: :attr:`TestMaps.frame`)
+    as :func:`phi_at` reads it, linear in orientation.
     """
-    n_bins, h, w = density.shape
+    n_bins = density.shape[0]
     bin_width = np.pi / n_bins
     ca, sa = np.cos(alpha), np.sin(alpha)
     total = 0.0
@@ -147,8 +146,6 @@ def gather_score(density, train_xy, train_theta, train_w, alpha, scale, tu, tv
             continue
         x = scale * (ca * train_xy[i, 0] - sa * train_xy[i, 1]) + tu
         y = scale * (sa * train_xy[i, 0] + ca * train_xy[i, 1]) + tv
-        if x < 0.0 or y < 0.0 or x >= w - 1 or y >= h - 1:
-            continue
         th = train_theta[i] + alpha
         th = th - np.pi * np.floor(th / np.pi)
         f = th / bin_width - 0.5
@@ -156,17 +153,31 @@ def gather_score(density, train_xy, train_theta, train_w, alpha, scale, tu, tv
         ft = f - fb
         b0 = int(fb) % n_bins
         b1 = (b0 + 1) % n_bins
-        total += wi * phi_at(density, x, y, b0, b1, ft)
+        total += wi * phi_at(density, frame, x, y, b0, b1, ft)
     return total
 
 
 @numba.njit(cache=True, nogil=True)
-def phi_at(density, x, y, b0, b1, ft):  # pragma: no cover - compiled
-    """phi at (x, y) inside the maps: bilinear in position, between bins ``b0`` and ``b1``."""
-    c0 = int(x)
-    r0 = int(y)
-    fx = x - c0
-    fy = y - r0
+def phi_at(density, frame, x, y, b0, b1, ft):  # pragma: no cover - compiled
+    """phi at pixel (x, y) between bins ``b0`` and ``b1``: 0 outside the window, else
+    bilinear on the grid.
+
+    ``frame`` is :attr:`TestMaps.frame`, ``(u_lo, v_lo, u_hi, v_hi, k, (k - 1) / 2,
+    1 / k)``: cell ``i`` of the grid lies at pixel ``k i + (k - 1) / 2``, and a
+    pixel before the first cell reads it.
+    """
+    if x < frame[0] or y < frame[1] or x >= frame[2] or y >= frame[3]:
+        return 0.0
+    gx = (x - frame[5]) * frame[6]
+    gy = (y - frame[5]) * frame[6]
+    if gx < 0.0:
+        gx = 0.0
+    if gy < 0.0:
+        gy = 0.0
+    c0 = int(gx)
+    r0 = int(gy)
+    fx = gx - c0
+    fy = gy - r0
     v0 = ((1 - fx) * (1 - fy) * density[b0, r0, c0] + fx * (1 - fy) * density[b0, r0, c0 + 1]
           + (1 - fx) * fy * density[b0, r0 + 1, c0] + fx * fy * density[b0, r0 + 1, c0 + 1])
     v1 = ((1 - fx) * (1 - fy) * density[b1, r0, c0] + fx * (1 - fy) * density[b1, r0, c0 + 1]
@@ -174,33 +185,38 @@ def phi_at(density, x, y, b0, b1, ft):  # pragma: no cover - compiled
     return (1.0 - ft) * v0 + ft * v1
 
 
-def density_at(density: NDArray[np.float32], xy: NDArray[np.float64], theta: NDArray[np.float64]
+def density_at(maps: TestMaps, xy: NDArray[np.float64], theta: NDArray[np.float64]
                ) -> NDArray[np.float64]:
-    """phi at each point and orientation, interpolated as :func:`gather_score` reads it.
+    """phi at each point and orientation, interpolated as :func:`phi_at` reads it.
 
-    Bilinear in position, linear in orientation; 0 outside the maps.
+    Bilinear in position on the maps' grid, linear in orientation; 0
+    outside their window.
     """
     from scipy.ndimage import map_coordinates
 
-    n_bins, h, w = density.shape
+    n_bins = maps.density.shape[0]
+    u_lo, v_lo, u_hi, v_hi = maps.window
+    k = maps.grid
     f = np.mod(theta, np.pi) / (np.pi / n_bins) - 0.5
     b0 = np.floor(f).astype(int) % n_bins
     b1 = (b0 + 1) % n_bins
     ft = f - np.floor(f)
     x, y = xy[:, 0], xy[:, 1]
-    inside = (x >= 0) & (y >= 0) & (x < w - 1) & (y < h - 1)
-    d = density.astype(np.float64)
-    v0 = map_coordinates(d, [b0, y, x], order=1, mode="constant")
-    v1 = map_coordinates(d, [b1, y, x], order=1, mode="constant")
+    inside = (x >= u_lo) & (y >= v_lo) & (x < u_hi) & (y < v_hi)
+    gx = np.maximum((x - 0.5 * (k - 1)) / k, 0.0)
+    gy = np.maximum((y - 0.5 * (k - 1)) / k, 0.0)
+    d = maps.density.astype(np.float64)
+    v0 = map_coordinates(d, [b0, gy, gx], order=1, mode="nearest")
+    v1 = map_coordinates(d, [b1, gy, gx], order=1, mode="nearest")
     return np.where(inside, (1 - ft) * v0 + ft * v1, 0.0)
 
 
-def gather_score_reference(density, train_xy, train_theta, train_w, alpha, scale, tu, tv):
+def gather_score_reference(maps, train_xy, train_theta, train_w, alpha, scale, tu, tv):
     """Pure-numpy :func:`gather_score` (for tests)."""
     ca, sa = np.cos(alpha), np.sin(alpha)
     x = scale * (ca * train_xy[:, 0] - sa * train_xy[:, 1]) + tu
     y = scale * (sa * train_xy[:, 0] + ca * train_xy[:, 1]) + tv
-    values = density_at(density, np.stack([x, y], axis=1), train_theta + alpha)
+    values = density_at(maps, np.stack([x, y], axis=1), train_theta + alpha)
     return float(np.sum(np.where(train_w > 0, train_w * values, 0.0)))
 
 
@@ -242,31 +258,19 @@ def blur_taps(sigma_cells: float) -> NDArray[np.float64]:
 
 
 @numba.njit(cache=True, nogil=True)
-def _prepare_pose(density, train_xy, train_theta, train_w, alpha, scale, u0, v0, base, frac,
-                  obins, ofrac):  # pragma: no cover - compiled
-    """Per-feature geometry of one pose relative to the integer pixel (u0, v0).
+def place_features(n_bins, xy, theta, alpha, scale, u0, v0, px, py, obins, ofrac
+                   ):  # pragma: no cover - compiled
+    """The features turned, scaled and moved to (u0, v0) as :func:`gather_score` places
+    them (``px``, ``py``), and their orientation bins (``obins``, ``ofrac``), in place.
 
-    Shifting the translation by whole pixels keeps every feature's fractional
-    position, so bilinear weights (``frac``: the four corners' shares) and
-    orientation bins are computed once.
+    The pose's shifts (:func:`shifted_score`) then skip the turn and the bins.
     """
-    n_bins = density.shape[0]
     bin_width = np.pi / n_bins
     ca, sa = np.cos(alpha), np.sin(alpha)
-    for i in range(train_xy.shape[0]):
-        x = scale * (ca * train_xy[i, 0] - sa * train_xy[i, 1]) + u0
-        y = scale * (sa * train_xy[i, 0] + ca * train_xy[i, 1]) + v0
-        c0 = np.floor(x)
-        r0 = np.floor(y)
-        base[i, 0] = int(c0)
-        base[i, 1] = int(r0)
-        fx = x - c0
-        fy = y - r0
-        frac[i, 0] = (1 - fx) * (1 - fy)
-        frac[i, 1] = fx * (1 - fy)
-        frac[i, 2] = (1 - fx) * fy
-        frac[i, 3] = fx * fy
-        th = train_theta[i] + alpha
+    for i in range(xy.shape[0]):
+        px[i] = scale * (ca * xy[i, 0] - sa * xy[i, 1]) + u0
+        py[i] = scale * (sa * xy[i, 0] + ca * xy[i, 1]) + v0
+        th = theta[i] + alpha
         th = th - np.pi * np.floor(th / np.pi)
         f = th / bin_width - 0.5
         fb = np.floor(f)
@@ -276,33 +280,18 @@ def _prepare_pose(density, train_xy, train_theta, train_w, alpha, scale, u0, v0,
 
 
 @numba.njit(cache=True, nogil=True)
-def _shifted_score(density, train_w, base, frac, obins, ofrac, du, dv, step=1
-                   ):  # pragma: no cover - compiled
-    """gather_score for the prepared pose shifted by whole pixels (du, dv).
-
-    With ``step`` > 1, over every ``step``-th feature only (a cheaper
-    estimate, for comparing shifts).
-    """
-    h = density.shape[1]
-    w = density.shape[2]
+def shifted_score(density, frame, weight, px, py, obins, ofrac, du, dv, step
+                  ):  # pragma: no cover - compiled
+    """:func:`gather_score` of the features placed by :func:`place_features`, shifted by
+    (du, dv); with ``step`` > 1, of every ``step``-th feature only (a cheaper
+    estimate, for comparing shifts)."""
     total = 0.0
-    for i in range(0, train_w.shape[0], step):
-        wi = train_w[i]
-        c0 = base[i, 0] + du
-        r0 = base[i, 1] + dv
-        if wi <= 0.0 or c0 < 0 or r0 < 0 or c0 >= w - 1 or r0 >= h - 1:
+    for i in range(0, weight.shape[0], step):
+        wi = weight[i]
+        if wi <= 0.0:
             continue
-        w00 = frac[i, 0]
-        w01 = frac[i, 1]
-        w10 = frac[i, 2]
-        w11 = frac[i, 3]
-        b0 = obins[i, 0]
-        b1 = obins[i, 1]
-        v0 = (w00 * density[b0, r0, c0] + w01 * density[b0, r0, c0 + 1]
-              + w10 * density[b0, r0 + 1, c0] + w11 * density[b0, r0 + 1, c0 + 1])
-        v1 = (w00 * density[b1, r0, c0] + w01 * density[b1, r0, c0 + 1]
-              + w10 * density[b1, r0 + 1, c0] + w11 * density[b1, r0 + 1, c0 + 1])
-        total += wi * ((1.0 - ofrac[i]) * v0 + ofrac[i] * v1)
+        total += wi * phi_at(density, frame, px[i] + du, py[i] + dv, obins[i, 0], obins[i, 1],
+                             ofrac[i])
     return total
 
 
@@ -312,14 +301,14 @@ _CLIMB_FEATURES = 250
 
 
 @numba.njit(cache=True, nogil=True)
-def _climb(density, train_w, base, frac, obins, ofrac, cache, vals, pu, pv, step, diagonal
+def _climb(density, frame, train_w, px, py, obins, ofrac, cache, vals, pu, pv, step, diagonal
            ):  # pragma: no cover - compiled
     """Hill-climb the shifted score from (pu, pv) to a peak of it, on the lattice.
 
     Moves to the best of the 8 neighbours (``diagonal``) or of the 4, while
     one beats the centre; ``vals`` is left holding the peak's neighbourhood
     (-inf outside the polish radius) and ``cache`` the scores (``step`` as in
-    :func:`_shifted_score`) by shift. Returns the peak (pu, pv).
+    :func:`shifted_score`) by shift. Returns the peak (pu, pv).
     """
     r = _POLISH_RADIUS
     for _ in range(4 * r):
@@ -334,7 +323,7 @@ def _climb(density, train_w, base, frac, obins, ofrac, cache, vals, pu, pv, step
                 continue
             val = cache[iv + r, iu + r]
             if np.isnan(val):
-                val = _shifted_score(density, train_w, base, frac, obins, ofrac, iu, iv, step)
+                val = shifted_score(density, frame, train_w, px, py, obins, ofrac, iu, iv, step)
                 cache[iv + r, iu + r] = val
             vals[dr, dc] = val
         best = 4
@@ -353,24 +342,24 @@ def _climb(density, train_w, base, frac, obins, ofrac, cache, vals, pu, pv, step
 
 
 @numba.njit(cache=True, nogil=True)
-def _polish(density, train_xy, train_theta, train_w, alpha, scale, u0, v0, base, frac, obins,
+def _polish(density, frame, train_xy, train_theta, train_w, alpha, scale, u0, v0, px, py, obins,
             ofrac, cache):  # pragma: no cover - compiled
     """Hill-climb the exact score on a 1-pixel lattice, then a parabolic step."""
     cu = np.floor(u0 + 0.5)
     cv = np.floor(v0 + 0.5)
-    _prepare_pose(density, train_xy, train_theta, train_w, alpha, scale, cu, cv, base, frac,
-                  obins, ofrac)
+    place_features(density.shape[0], train_xy, train_theta, alpha, scale, cu, cv, px, py, obins,
+                   ofrac)
     vals = np.empty((3, 3))
     # The climb compares shifts on a subset of the features; the peak's
     # neighbourhood is then scored on all of them.
     step = max(1, train_w.shape[0] // _CLIMB_FEATURES)
     cache[:, :] = np.nan
-    pu, pv = _climb(density, train_w, base, frac, obins, ofrac, cache, vals, 0, 0, step, True)
+    pu, pv = _climb(density, frame, train_w, px, py, obins, ofrac, cache, vals, 0, 0, step, True)
     if step > 1:
         # On all the features from there, climbing to the 4-neighbours, so
         # that the peak is one of the exact score.
         cache[:, :] = np.nan
-        pu, pv = _climb(density, train_w, base, frac, obins, ofrac, cache, vals, pu, pv, 1,
+        pu, pv = _climb(density, frame, train_w, px, py, obins, ofrac, cache, vals, pu, pv, 1,
                         False)
     for k in (1, 3, 5, 7):
         if vals[k // 3, k % 3] == -np.inf:
@@ -394,18 +383,16 @@ def _polish(density, train_xy, train_theta, train_w, alpha, scale, u0, v0, base,
 
 @numba.njit(cache=True, nogil=True)
 def _search_kernel(train_xy, train_theta, train_w, alphas, scales, test_xy, test_theta, test_w,
-                   bin_start, lut, radius, density, cell, taps, n_candidates, voters, polish,
-                   out_score, out_t):  # pragma: no cover - compiled
-    h = density.shape[1]
-    w = density.shape[2]
+                   bin_start, lut, radius, density, frame, h, w, cell, taps, n_candidates, voters,
+                   polish, out_score, out_t):  # pragma: no cover - compiled
     gh = int(np.ceil(h / cell)) + 1
     gw = int(np.ceil(w / cell)) + 1
     acc = np.zeros((gh, gw))
     tmp = np.zeros((gh, gw))
     # The polish's per-pose tables; an unpolished search needs none.
     m = train_xy.shape[0] if polish else 0
-    base = np.empty((m, 2), dtype=np.int64)
-    frac = np.empty((m, 4))
+    px = np.empty(m)
+    py = np.empty(m)
     obins = np.empty((m, 2), dtype=np.int64)
     ofrac = np.empty(m)
     cache = np.empty((2 * _POLISH_RADIUS + 1, 2 * _POLISH_RADIUS + 1))
@@ -434,7 +421,7 @@ def _search_kernel(train_xy, train_theta, train_w, alphas, scales, test_xy, test
                     best_r = r
                     best_c = c
                     break
-                start = gather_score(density, train_xy, train_theta, train_w, alphas[a],
+                start = gather_score(density, frame, train_xy, train_theta, train_w, alphas[a],
                                      scales[s], c * cell, r * cell)
                 if start > best_start:
                     best_start = start
@@ -449,10 +436,9 @@ def _search_kernel(train_xy, train_theta, train_w, alphas, scales, test_xy, test
             best_u = max(best_c, 0) * cell
             best_v = max(best_r, 0) * cell
             if best_r >= 0 and polish:
-                best_score, best_u, best_v = _polish(density, train_xy, train_theta, train_w,
-                                                     alphas[a], scales[s], best_c * cell,
-                                                     best_r * cell, base, frac, obins, ofrac,
-                                                     cache)
+                best_score, best_u, best_v = _polish(density, frame, train_xy, train_theta,
+                                                     train_w, alphas[a], scales[s], best_c * cell,
+                                                     best_r * cell, px, py, obins, ofrac, cache)
             out_score[a, s] = max(best_score, 0.0)
             out_t[a, s, 0] = best_u
             out_t[a, s, 1] = best_v
@@ -550,6 +536,6 @@ def search_translations(maps: TestMaps, train_xy: NDArray[np.float64],
         _search_kernel(train_xy, train_theta, train_w, np.asarray(inplanes, dtype=np.float64),
                        np.asarray(scales, dtype=np.float64), maps.vote_xy, maps.vote_theta,
                        maps.vote_weight, maps.bin_start, maps.lut, maps.vote_radius,
-                       maps.density, float(cell), taps, int(n_candidates), voters, bool(polish),
-                       out_score, out_t)
+                       maps.density, maps.frame, maps.shape[0], maps.shape[1], float(cell), taps,
+                       int(n_candidates), voters, bool(polish), out_score, out_t)
     return out_score, out_t

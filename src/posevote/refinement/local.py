@@ -23,7 +23,8 @@ from posevote.inference.search import ProbeSet, SearchSetup, viewpoint_features
 from posevote.inference.voting import (
     gather_score,
     gather_score_reference,
-    phi_at,
+    place_features,
+    shifted_score,
     subsample_features,
 )
 from posevote.model.density import PoseModel
@@ -90,8 +91,8 @@ def polish_pose(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps, *,
     log_lo, log_hi = min(log_lo, start[1]), max(log_hi, start[1])
 
     bounds = np.array([log_lo, log_hi])
-    z, best, initial = _compass_search(maps.density, feats.xy, feats.theta, feats.weight, start,
-                                       unit, bounds, max_shift)
+    z, best, initial = _compass_search(maps.density, maps.frame, feats.xy, feats.theta,
+                                       feats.weight, start, unit, bounds, max_shift)
     if not best > initial:
         return replace(hypothesis, score=float(initial))
     alpha, log_s, u, v = start + z * unit
@@ -110,43 +111,7 @@ _COMPASS_EVALS = 400
 
 
 @numba.njit(cache=True, nogil=True)
-def _rotate(density, xy, theta, alpha, scale, px, py, b0, b1, ft):  # pragma: no cover - compiled
-    """The features turned and scaled as :func:`gather_score` places them, before the shift."""
-    n_bins = density.shape[0]
-    bin_width = np.pi / n_bins
-    ca, sa = np.cos(alpha), np.sin(alpha)
-    for i in range(xy.shape[0]):
-        px[i] = scale * (ca * xy[i, 0] - sa * xy[i, 1])
-        py[i] = scale * (sa * xy[i, 0] + ca * xy[i, 1])
-        th = theta[i] + alpha
-        th = th - np.pi * np.floor(th / np.pi)
-        f = th / bin_width - 0.5
-        fb = np.floor(f)
-        ft[i] = f - fb
-        b0[i] = int(fb) % n_bins
-        b1[i] = (b0[i] + 1) % n_bins
-
-
-@numba.njit(cache=True, nogil=True)
-def _shifted(density, weight, px, py, b0, b1, ft, tu, tv):  # pragma: no cover - compiled
-    """:func:`gather_score` of the turned features of :func:`_rotate` shifted by (tu, tv)."""
-    h = density.shape[1]
-    w = density.shape[2]
-    total = 0.0
-    for i in range(px.shape[0]):
-        wi = weight[i]
-        if wi <= 0.0:
-            continue
-        x = px[i] + tu
-        y = py[i] + tv
-        if x < 0.0 or y < 0.0 or x >= w - 1 or y >= h - 1:
-            continue
-        total += wi * phi_at(density, x, y, b0[i], b1[i], ft[i])
-    return total
-
-
-@numba.njit(cache=True, nogil=True)
-def _compass_search(density, xy, theta, weight, start, unit, log_bounds, max_shift
+def _compass_search(density, frame, xy, theta, weight, start, unit, log_bounds, max_shift
                     ):  # pragma: no cover - compiled
     """Maximise p(w) over ``start + z * unit`` by a compass search in z (|z| <= max_shift).
 
@@ -155,7 +120,7 @@ def _compass_search(density, xy, theta, weight, start, unit, log_bounds, max_shi
     one, the step is halved. Returns (z, its score, the score at z = 0).
     """
     z = np.zeros(4)
-    best = gather_score(density, xy, theta, weight, start[0], np.exp(start[1]), start[2],
+    best = gather_score(density, frame, xy, theta, weight, start[0], np.exp(start[1]), start[2],
                         start[3])
     initial = best
     step = _COMPASS_FIRST
@@ -165,9 +130,10 @@ def _compass_search(density, xy, theta, weight, start, unit, log_bounds, max_shi
     # (half of them) then skip the turn and the orientation bins.
     n = xy.shape[0]
     px, py, ft = np.empty(n), np.empty(n), np.empty(n)
-    b0, b1 = np.empty(n, dtype=np.int64), np.empty(n, dtype=np.int64)
-    _rotate(density, xy, theta, start[0] + z[0] * unit[0], np.exp(start[1] + z[1] * unit[1]),
-            px, py, b0, b1, ft)
+    bins = np.empty((n, 2), dtype=np.int64)
+    n_bins = density.shape[0]
+    place_features(n_bins, xy, theta, start[0] + z[0] * unit[0],
+                   np.exp(start[1] + z[1] * unit[1]), 0.0, 0.0, px, py, bins, ft)
     while step >= _COMPASS_LAST and evals < _COMPASS_EVALS:
         move = -1
         move_value = best
@@ -180,10 +146,12 @@ def _compass_search(density, xy, theta, weight, start, unit, log_bounds, max_shi
             if log_s < log_bounds[0] or log_s > log_bounds[1]:
                 continue
             if k >= 4:
-                value = _shifted(density, weight, px, py, b0, b1, ft,
-                                 start[2] + trial[2] * unit[2], start[3] + trial[3] * unit[3])
+                value = shifted_score(density, frame, weight, px, py, bins, ft,
+                                      start[2] + trial[2] * unit[2],
+                                      start[3] + trial[3] * unit[3], 1)
             else:
-                value = gather_score(density, xy, theta, weight, start[0] + trial[0] * unit[0],
+                value = gather_score(density, frame, xy, theta, weight,
+                                     start[0] + trial[0] * unit[0],
                                      np.exp(log_s), start[2] + trial[2] * unit[2],
                                      start[3] + trial[3] * unit[3])
             evals += 1
@@ -196,12 +164,12 @@ def _compass_search(density, xy, theta, weight, start, unit, log_bounds, max_shi
             z[move // 2] += step if move % 2 == 0 else -step
             best = move_value
             if move < 4:
-                _rotate(density, xy, theta, start[0] + z[0] * unit[0],
-                        np.exp(start[1] + z[1] * unit[1]), px, py, b0, b1, ft)
+                place_features(n_bins, xy, theta, start[0] + z[0] * unit[0],
+                               np.exp(start[1] + z[1] * unit[1]), 0.0, 0.0, px, py, bins, ft)
     return z, best, initial
 
 
-def compass_search_reference(density: NDArray[np.float32], xy: NDArray[np.float64],
+def compass_search_reference(maps: TestMaps, xy: NDArray[np.float64],
                              theta: NDArray[np.float64], weight: NDArray[np.float64],
                              start: NDArray[np.float64], unit: NDArray[np.float64],
                              log_bounds: NDArray[np.float64], max_shift: float
@@ -209,8 +177,7 @@ def compass_search_reference(density: NDArray[np.float32], xy: NDArray[np.float6
     """:func:`_compass_search` in numpy (for tests)."""
     def score(z: NDArray[np.float64]) -> float:
         alpha, log_s, u, v = start + z * unit
-        return gather_score_reference(density, xy, theta, weight, alpha, float(np.exp(log_s)),
-                                      u, v)
+        return gather_score_reference(maps, xy, theta, weight, alpha, float(np.exp(log_s)), u, v)
 
     z, step, evals = np.zeros(4), _COMPASS_FIRST, 1
     best = initial = score(z)
