@@ -60,8 +60,8 @@ def test_score_kernels_match_reference(scene, t, sigma):
     assert got == pytest.approx(ref, rel=1e-9, abs=1e-12)
     m = len(train_w)
     px, py, obins, ofrac = np.empty(m), np.empty(m), np.empty((m, 2), np.int64), np.empty(m)
-    place_features(maps.density.shape[0], train_xy, train_theta, alpha, scale, t[0] - 2, t[1] + 1,
-                   px, py, obins, ofrac)
+    place_features(maps.frame, maps.density.shape[0], train_xy, train_theta, alpha, scale,
+                   t[0] - 2, t[1] + 1, px, py, obins, ofrac)
     assert shifted_score(maps.density, maps.frame, train_w, px, py, obins, ofrac, 2, -1, 1
                          ) == pytest.approx(got, rel=1e-9, abs=1e-12)
 

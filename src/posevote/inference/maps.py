@@ -2,12 +2,12 @@
 
 :func:`prepare_test` sorts the test features into voters (those of one
 orientation bin in one square merged, :func:`merge_voters`) and tabulates the
-test density phi at every pixel for evenly spaced orientations, the planes
-smoothed on a coarse grid when the kernel is wide (:func:`blurred_points`,
-:func:`smooth`). :func:`restrict_maps` keeps a window of them, and
+test density phi for evenly spaced orientations: at every pixel when the
+kernel is narrow, on a coarse grid of ``k x k`` pixel cells when it is wide
+(:func:`blurred_points`, :func:`map_grid`), the kernels reading it
+bilinearly either way. :func:`restrict_maps` keeps a window of them, and
 :func:`scaled_features` divides the features by a scale (one level of a
-pyramid). The kernels that read them are in :mod:`posevote.inference.voting`.
-"""
+pyramid). The kernels that read them are in :mod:`posevote.inference.voting`."""
 
 from __future__ import annotations
 
@@ -86,9 +86,10 @@ class TestMaps:
 
     @property
     def frame(self) -> NDArray[np.float64]:
-        """``(*window, grid, (grid - 1) / 2, 1 / grid)`` as the compiled readers take it
-        (:func:`posevote.inference.voting.phi_at`)."""
-        return np.array([*self.window, self.grid, 0.5 * (self.grid - 1), 1.0 / self.grid])
+        """The grid as the compiled readers take it: the window in grid units, then ``off``
+        and ``inv``, pixel ``p`` lying at grid position ``(p - off) * inv``."""
+        off, inv = 0.5 * (self.grid - 1), 1.0 / self.grid
+        return np.array([(bound - off) * inv for bound in self.window] + [off, inv])
 
 
 def prepare_test(features: EdgeFeatures, shape: tuple[int, int], *, position_sigma: float,

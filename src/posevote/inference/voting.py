@@ -134,18 +134,24 @@ def gather_score(density, frame, train_xy, train_theta, train_w, alpha, scale, t
     """Sum of ``wt_i * phi(T_w x_i)`` with ``T_w`` = (alpha, scale, (tu, tv)).
 
     ``phi`` is read from the tabulated maps (``frame``: :attr:`TestMaps.frame`)
-    as :func:`phi_at` reads it, linear in orientation.
+    bilinearly in position and linearly in orientation; outside their
+    window it is 0.
     """
     n_bins = density.shape[0]
     bin_width = np.pi / n_bins
-    ca, sa = np.cos(alpha), np.sin(alpha)
+    off, inv = frame[4], frame[5]
+    # The pose straight to grid units: a pixel's position p is at (p - off) * inv.
+    ca, sa = scale * inv * np.cos(alpha), scale * inv * np.sin(alpha)
+    gu, gv = (tu - off) * inv, (tv - off) * inv
     total = 0.0
     for i in range(train_xy.shape[0]):
         wi = train_w[i]
         if wi <= 0.0:
             continue
-        x = scale * (ca * train_xy[i, 0] - sa * train_xy[i, 1]) + tu
-        y = scale * (sa * train_xy[i, 0] + ca * train_xy[i, 1]) + tv
+        x = ca * train_xy[i, 0] - sa * train_xy[i, 1] + gu
+        y = sa * train_xy[i, 0] + ca * train_xy[i, 1] + gv
+        if x < frame[0] or y < frame[1] or x >= frame[2] or y >= frame[3]:
+            continue
         th = train_theta[i] + alpha
         th = th - np.pi * np.floor(th / np.pi)
         f = th / bin_width - 0.5
@@ -153,31 +159,22 @@ def gather_score(density, frame, train_xy, train_theta, train_w, alpha, scale, t
         ft = f - fb
         b0 = int(fb) % n_bins
         b1 = (b0 + 1) % n_bins
-        total += wi * phi_at(density, frame, x, y, b0, b1, ft)
+        total += wi * phi_at(density, x, y, b0, b1, ft)
     return total
 
 
 @numba.njit(cache=True, nogil=True)
-def phi_at(density, frame, x, y, b0, b1, ft):  # pragma: no cover - compiled
-    """phi at pixel (x, y) between bins ``b0`` and ``b1``: 0 outside the window, else
-    bilinear on the grid.
-
-    ``frame`` is :attr:`TestMaps.frame`, ``(u_lo, v_lo, u_hi, v_hi, k, (k - 1) / 2,
-    1 / k)``: cell ``i`` of the grid lies at pixel ``k i + (k - 1) / 2``, and a
-    pixel before the first cell reads it.
-    """
-    if x < frame[0] or y < frame[1] or x >= frame[2] or y >= frame[3]:
-        return 0.0
-    gx = (x - frame[5]) * frame[6]
-    gy = (y - frame[5]) * frame[6]
-    if gx < 0.0:
-        gx = 0.0
-    if gy < 0.0:
-        gy = 0.0
-    c0 = int(gx)
-    r0 = int(gy)
-    fx = gx - c0
-    fy = gy - r0
+def phi_at(density, x, y, b0, b1, ft):  # pragma: no cover - compiled
+    """phi at grid position (x, y) inside the window, between bins ``b0`` and ``b1``:
+    bilinear (a position before the first cell reads it)."""
+    if x < 0.0:
+        x = 0.0
+    if y < 0.0:
+        y = 0.0
+    c0 = int(x)
+    r0 = int(y)
+    fx = x - c0
+    fy = y - r0
     v0 = ((1 - fx) * (1 - fy) * density[b0, r0, c0] + fx * (1 - fy) * density[b0, r0, c0 + 1]
           + (1 - fx) * fy * density[b0, r0 + 1, c0] + fx * fy * density[b0, r0 + 1, c0 + 1])
     v1 = ((1 - fx) * (1 - fy) * density[b1, r0, c0] + fx * (1 - fy) * density[b1, r0, c0 + 1]
@@ -258,18 +255,21 @@ def blur_taps(sigma_cells: float) -> NDArray[np.float64]:
 
 
 @numba.njit(cache=True, nogil=True)
-def place_features(n_bins, xy, theta, alpha, scale, u0, v0, px, py, obins, ofrac
+def place_features(frame, n_bins, xy, theta, alpha, scale, u0, v0, px, py, obins, ofrac
                    ):  # pragma: no cover - compiled
     """The features turned, scaled and moved to (u0, v0) as :func:`gather_score` places
-    them (``px``, ``py``), and their orientation bins (``obins``, ``ofrac``), in place.
+    them, in the grid's units (``px``, ``py``), and their orientation bins
+    (``obins``, ``ofrac``), in place.
 
     The pose's shifts (:func:`shifted_score`) then skip the turn and the bins.
     """
     bin_width = np.pi / n_bins
-    ca, sa = np.cos(alpha), np.sin(alpha)
+    off, inv = frame[4], frame[5]
+    ca, sa = scale * inv * np.cos(alpha), scale * inv * np.sin(alpha)
+    gu, gv = (u0 - off) * inv, (v0 - off) * inv
     for i in range(xy.shape[0]):
-        px[i] = scale * (ca * xy[i, 0] - sa * xy[i, 1]) + u0
-        py[i] = scale * (sa * xy[i, 0] + ca * xy[i, 1]) + v0
+        px[i] = ca * xy[i, 0] - sa * xy[i, 1] + gu
+        py[i] = sa * xy[i, 0] + ca * xy[i, 1] + gv
         th = theta[i] + alpha
         th = th - np.pi * np.floor(th / np.pi)
         f = th / bin_width - 0.5
@@ -283,15 +283,18 @@ def place_features(n_bins, xy, theta, alpha, scale, u0, v0, px, py, obins, ofrac
 def shifted_score(density, frame, weight, px, py, obins, ofrac, du, dv, step
                   ):  # pragma: no cover - compiled
     """:func:`gather_score` of the features placed by :func:`place_features`, shifted by
-    (du, dv); with ``step`` > 1, of every ``step``-th feature only (a cheaper
-    estimate, for comparing shifts)."""
+    (du, dv) pixels; with ``step`` > 1, of every ``step``-th feature only (a
+    cheaper estimate, for comparing shifts)."""
+    gu = du * frame[5]
+    gv = dv * frame[5]
     total = 0.0
     for i in range(0, weight.shape[0], step):
         wi = weight[i]
-        if wi <= 0.0:
+        x = px[i] + gu
+        y = py[i] + gv
+        if wi <= 0.0 or x < frame[0] or y < frame[1] or x >= frame[2] or y >= frame[3]:
             continue
-        total += wi * phi_at(density, frame, px[i] + du, py[i] + dv, obins[i, 0], obins[i, 1],
-                             ofrac[i])
+        total += wi * phi_at(density, x, y, obins[i, 0], obins[i, 1], ofrac[i])
     return total
 
 
@@ -347,8 +350,8 @@ def _polish(density, frame, train_xy, train_theta, train_w, alpha, scale, u0, v0
     """Hill-climb the exact score on a 1-pixel lattice, then a parabolic step."""
     cu = np.floor(u0 + 0.5)
     cv = np.floor(v0 + 0.5)
-    place_features(density.shape[0], train_xy, train_theta, alpha, scale, cu, cv, px, py, obins,
-                   ofrac)
+    place_features(frame, density.shape[0], train_xy, train_theta, alpha, scale, cu, cv, px, py,
+                   obins, ofrac)
     vals = np.empty((3, 3))
     # The climb compares shifts on a subset of the features; the peak's
     # neighbourhood is then scored on all of them.

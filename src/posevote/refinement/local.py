@@ -132,7 +132,7 @@ def _compass_search(density, frame, xy, theta, weight, start, unit, log_bounds, 
     px, py, ft = np.empty(n), np.empty(n), np.empty(n)
     bins = np.empty((n, 2), dtype=np.int64)
     n_bins = density.shape[0]
-    place_features(n_bins, xy, theta, start[0] + z[0] * unit[0],
+    place_features(frame, n_bins, xy, theta, start[0] + z[0] * unit[0],
                    np.exp(start[1] + z[1] * unit[1]), 0.0, 0.0, px, py, bins, ft)
     while step >= _COMPASS_LAST and evals < _COMPASS_EVALS:
         move = -1
@@ -164,7 +164,7 @@ def _compass_search(density, frame, xy, theta, weight, start, unit, log_bounds, 
             z[move // 2] += step if move % 2 == 0 else -step
             best = move_value
             if move < 4:
-                place_features(n_bins, xy, theta, start[0] + z[0] * unit[0],
+                place_features(frame, n_bins, xy, theta, start[0] + z[0] * unit[0],
                                np.exp(start[1] + z[1] * unit[1]), 0.0, 0.0, px, py, bins, ft)
     return z, best, initial
 
