@@ -243,8 +243,9 @@ def _pixel_shares(n_cells: int, k: int, lo: int, hi: int) -> NDArray[np.float64]
     g = np.maximum((np.arange(lo, hi + 1) + 0.5) / k - 0.5, 0.0)
     c0 = g.astype(np.int64)
     f = g - c0
-    return (np.bincount(c0, weights=1.0 - f, minlength=n_cells)[:n_cells]
-            + np.bincount(c0 + 1, weights=f, minlength=n_cells)[:n_cells])
+    out += np.bincount(c0, weights=1.0 - f, minlength=n_cells)[:n_cells]
+    out += np.bincount(c0 + 1, weights=f, minlength=n_cells)[:n_cells]
+    return out
 
 
 def window_mean(density: NDArray[np.float32], k: int, shape: tuple[int, int],
