@@ -6,8 +6,11 @@ import pytest
 from posevote.features import EdgeFeatures
 from posevote.inference.maps import prepare_test
 from posevote.inference.voting import (
+    _blur,
     accumulate_votes,
     accumulate_votes_reference,
+    blur_reference,
+    blur_taps,
     density_at,
     gather_score,
     gather_score_reference,
@@ -45,6 +48,15 @@ def test_votes_kernel_matches_reference(scene):
                                      maps.vote_theta, maps.vote_weight, maps.lut, 2.5, (40, 50))
     assert acc.sum() > 0
     assert np.allclose(acc, ref, atol=1e-12)
+
+
+@pytest.mark.parametrize(("shape", "width"), [((51, 76), 1.5), ((7, 9), 2.0), ((40, 3), 0.8)])
+def test_vote_blur_matches_reference(shape, width):
+    acc = np.random.default_rng(1).random(shape)
+    taps = blur_taps(width)
+    want = blur_reference(acc, taps)
+    _blur(acc, np.empty(shape), taps)
+    np.testing.assert_allclose(acc, want, rtol=1e-12, atol=1e-15)
 
 
 @pytest.mark.parametrize("sigma", [2.0, 9.5])

@@ -221,25 +221,39 @@ def gather_score_reference(maps, train_xy, train_theta, train_w, alpha, scale, t
 
 @numba.njit(cache=True, nogil=True)
 def _blur(acc, tmp, taps):  # pragma: no cover - compiled
-    """Separable smoothing of ``acc`` in place with the symmetric kernel ``taps``."""
+    """Separable smoothing of ``acc`` in place with the symmetric kernel ``taps`` (0 outside).
+
+    Each tap is added along whole rows (contiguous, no branch per tap), in
+    the taps' order, so that every cell sums the same terms in the same
+    order as a tap loop per cell would.
+    """
     gh, gw = acc.shape
     r = taps.shape[0] // 2
     for row in range(gh):
-        for c in range(gw):
-            total = 0.0
-            for k in range(-r, r + 1):
-                cc = c + k
-                if 0 <= cc < gw:
-                    total += taps[k + r] * acc[row, cc]
-            tmp[row, c] = total
+        a = acc[row]
+        t = tmp[row]
+        t[:] = 0.0
+        for k in range(-r, r + 1):
+            wk = taps[k + r]
+            for c in range(max(0, -k), min(gw, gw - k)):
+                t[c] += wk * a[c + k]
     for row in range(gh):
-        for c in range(gw):
-            total = 0.0
-            for k in range(-r, r + 1):
-                rr = row + k
-                if 0 <= rr < gh:
-                    total += taps[k + r] * tmp[rr, c]
-            acc[row, c] = total
+        a = acc[row]
+        a[:] = 0.0
+        for k in range(max(-r, -row), min(r, gh - 1 - row) + 1):
+            wk = taps[k + r]
+            t = tmp[row + k]
+            for c in range(gw):
+                a[c] += wk * t[c]
+
+
+def blur_reference(acc: NDArray[np.float64], taps: NDArray[np.float64]) -> NDArray[np.float64]:
+    """:func:`_blur` in numpy, a copy (for tests)."""
+    r = len(taps) // 2
+    padded = np.pad(acc, r)
+    rows = sum(taps[k] * padded[:, k:k + acc.shape[1]] for k in range(len(taps)))[r:-r]
+    padded = np.pad(rows, ((r, r), (0, 0)))
+    return sum(taps[k] * padded[k:k + acc.shape[0]] for k in range(len(taps)))
 
 
 @functools.lru_cache(maxsize=64)
