@@ -156,8 +156,12 @@ def prepare_test(features: EdgeFeatures, shape: tuple[int, int], *, position_sig
     # readers interpolate (a cap between cells is the interpolated caps).
     _saturate(density, np.float32(gain), np.float32(-1.0 if density_cap is None else density_cap),
               mean)
+    # The planes' sum over orientations, for the chance level, from their mean.
+    plane_sum = mean.astype(np.float64) * density_bins
     if chance_width is not None:
-        _subtract_plane(density, chance_plane(mean, k, shape, chance_width))
+        local = chance_plane(mean, k, shape, chance_width)
+        _subtract_plane(density, local)
+        plane_sum -= local.astype(np.float64) * density_bins
     lut = orientation_kernel(np.linspace(0.0, np.pi / 2, _LUT_SIZE), orientation_kappa)
     cut = orientation_cutoff(orientation_kappa, vote_cutoff)
     radius = int(np.ceil(cut / (np.pi / vote_bins)))
@@ -169,7 +173,7 @@ def prepare_test(features: EdgeFeatures, shape: tuple[int, int], *, position_sig
                     density=density, grid=k, shape=(h, w), window=window,
                     lut=np.where(lut >= vote_cutoff, lut, 0.0),
                     vote_radius=min(radius, vote_bins // 2), position_sigma=float(position_sigma),
-                    chance=window_mean(density, k, shape, window))
+                    chance=window_mean(plane_sum, k, shape, window) / density_bins)
 
 
 # Two passes over the planes where numpy took five; saturate_reference is
@@ -248,15 +252,14 @@ def _pixel_shares(n_cells: int, k: int, lo: int, hi: int) -> NDArray[np.float64]
     return out
 
 
-def window_mean(density: NDArray[np.float32], k: int, shape: tuple[int, int],
+def window_mean(plane: NDArray[np.float64], k: int, shape: tuple[int, int],
                 window: tuple[float, float, float, float]) -> float:
-    """The sum of phi over the window's pixels (its edges included) and the orientations,
-    divided by the image's pixels and orientations: the maps' chance level."""
-    n, gh, gw = density.shape
+    """The mean over the image's pixels of a grid ``plane`` read bilinearly at the window's
+    pixels (its edges included) and 0 elsewhere."""
+    gh, gw = plane.shape
     cols = _pixel_shares(gw, k, int(window[0]), int(window[2]))
     rows = _pixel_shares(gh, k, int(window[1]), int(window[3]))
-    total = float(np.einsum("bij,i,j->", density, rows, cols, dtype=np.float64))
-    return total / (n * shape[0] * shape[1])
+    return float(rows @ plane @ cols) / (shape[0] * shape[1])
 
 
 #: Smoothing runs on a grid coarse enough that the kernel still spans this
@@ -462,10 +465,18 @@ def restrict_maps(maps: TestMaps, lo: NDArray[np.float64], hi: NDArray[np.float6
     u_lo, v_lo, u_hi, v_hi = maps.window
     window = (max(float(np.floor(lo[0])), u_lo), max(float(np.floor(lo[1])), v_lo),
               min(float(np.ceil(hi[0])), u_hi), min(float(np.ceil(hi[1])), v_hi))
+    # The planes' sum over orientations, on the cells the window reads only.
+    k, n_bins, (_, gh, gw) = maps.grid, len(maps.density), maps.density.shape
+    r0, c0 = (max(int((bound - 0.5 * (k - 1)) // k), 0) for bound in window[1::-1])
+    r1, c1 = (min(int((bound - 0.5 * (k - 1)) // k) + 2, n) for bound, n in
+              ((window[3], gh), (window[2], gw)))
+    plane_sum = np.zeros((gh, gw))
+    if r1 > r0 and c1 > c0:
+        plane_sum[r0:r1, c0:c1] = maps.density[:, r0:r1, c0:c1].sum(axis=0, dtype=np.float64)
     return replace(maps, xy=maps.xy[inside], theta=maps.theta[inside],
                    vote_xy=maps.vote_xy[voting], vote_theta=maps.vote_theta[voting],
                    vote_weight=maps.vote_weight[voting], bin_start=bin_start, window=window,
-                   chance=window_mean(maps.density, maps.grid, maps.shape, window))
+                   chance=window_mean(plane_sum, k, maps.shape, window) / n_bins)
 
 
 def scaled_features(features: EdgeFeatures, shape: tuple[int, int], scale: float
