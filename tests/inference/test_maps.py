@@ -168,3 +168,18 @@ def test_merged_voters_keep_the_votes():
     assert np.unravel_index(full.argmax(), full.shape) == np.unravel_index(merged.argmax(),
                                                                              merged.shape)
     assert np.abs(full - merged).max() < 0.1 * full.max()
+
+
+@pytest.mark.parametrize("shape", [(5, 4), (1, 1), (3, 40)])
+def test_a_wide_kernel_on_a_tiny_image_keeps_its_grid_readable(shape):
+    rng = np.random.default_rng(0)
+    xy = rng.uniform(0, 1, (20, 2)) * [shape[1] - 1, shape[0] - 1]
+    maps = prepare_test(EdgeFeatures(xy=xy, theta=rng.uniform(0, np.pi, 20)), shape,
+                        position_sigma=9.5, orientation_kappa=8.0)
+    # At least two cells each way, so that the bilinear reading never leaves the grid.
+    assert maps.grid == 3 and min(maps.density.shape[1:]) >= 2
+    assert np.isfinite(maps.chance) and maps.chance > 0
+    # A window wholly outside the image reads nothing and has no chance level.
+    away = restrict_maps(maps, np.array([50.0, 50.0]), np.array([60.0, 60.0]))
+    assert away.chance == 0.0
+    assert not density_at(away, xy, np.full(len(xy), 0.5)).any()
