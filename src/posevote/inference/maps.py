@@ -7,7 +7,8 @@ kernel is narrow, on a coarse grid of ``k x k`` pixel cells when it is wide
 (:func:`blurred_points`, :func:`map_grid`), the kernels reading it
 bilinearly either way. :func:`restrict_maps` keeps a window of them, and
 :func:`scaled_features` divides the features by a scale (one level of a
-pyramid). The kernels that read them are in :mod:`posevote.inference.voting`."""
+pyramid). The kernels that read them are in :mod:`posevote.inference.voting`.
+"""
 
 from __future__ import annotations
 
@@ -224,7 +225,8 @@ def chance_plane(mean: NDArray[np.float32], k: int, shape: tuple[int, int], widt
     the grid) blurred at ``width`` pixels.
 
     Blurred at the pixels, reflected at the image's border (so that its edge
-    is not a clearing), and read back at the cells' centres.
+    is not a clearing), and read back at the cells' centres (the pixel before
+    the centre for an even ``k``: the plane is far smoother than a pixel).
     """
     if k == 1:
         return smooth(mean, width, cv2.BORDER_REFLECT)
@@ -466,7 +468,7 @@ def restrict_maps(maps: TestMaps, lo: NDArray[np.float64], hi: NDArray[np.float6
     window = (max(float(np.floor(lo[0])), u_lo), max(float(np.floor(lo[1])), v_lo),
               min(float(np.ceil(hi[0])), u_hi), min(float(np.ceil(hi[1])), v_hi))
     # The planes' sum over orientations, on the cells the window reads only.
-    k, n_bins, (_, gh, gw) = maps.grid, len(maps.density), maps.density.shape
+    k, (n_planes, gh, gw) = maps.grid, maps.density.shape
     r0, c0 = (max(int((bound - 0.5 * (k - 1)) // k), 0) for bound in window[1::-1])
     r1, c1 = (min(int((bound - 0.5 * (k - 1)) // k) + 2, n) for bound, n in
               ((window[3], gh), (window[2], gw)))
@@ -476,7 +478,7 @@ def restrict_maps(maps: TestMaps, lo: NDArray[np.float64], hi: NDArray[np.float6
     return replace(maps, xy=maps.xy[inside], theta=maps.theta[inside],
                    vote_xy=maps.vote_xy[voting], vote_theta=maps.vote_theta[voting],
                    vote_weight=maps.vote_weight[voting], bin_start=bin_start, window=window,
-                   chance=window_mean(plane_sum, k, maps.shape, window) / n_bins)
+                   chance=window_mean(plane_sum, k, maps.shape, window) / n_planes)
 
 
 def scaled_features(features: EdgeFeatures, shape: tuple[int, int], scale: float
