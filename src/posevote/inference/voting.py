@@ -45,6 +45,11 @@ def accumulate_votes(train_xy, train_theta, train_w, alpha, scale, test_xy, test
         last -= 1
     reach = (last + 0.5) / lut_scale + 1e-9
     gh, gw = acc.shape
+    # One flat index per pair, unsigned: no negative-index wrap checks on the
+    # four writes (an eighth of the votes' time, the same sums).
+    flat = acc.ravel()
+    row = np.uint64(gw)
+    xmax, ymax = gw - 1.0, gh - 1.0
     # Positions in cells once, not a division per pair.
     inv_cell = 1.0 / cell
     n_test = test_xy.shape[0]
@@ -75,24 +80,23 @@ def accumulate_votes(train_xy, train_theta, train_w, alpha, scale, test_xy, test
                     d = np.pi - d
                 # A pair past the table's support adds zeros: cheaper than a
                 # branch that cannot be predicted.
-                wo = lut[int(d * lut_scale + 0.5)]
+                wo = lut[np.uint64(d * lut_scale + 0.5)]
                 gx = tx[j] - qx
                 gy = ty[j] - qy
-                if gx < 0.0 or gy < 0.0:
+                if not (gx >= 0.0 and gy >= 0.0 and gx < xmax and gy < ymax):
                     continue
-                c0 = int(gx)
-                r0 = int(gy)
-                if c0 >= gw - 1 or r0 >= gh - 1:
-                    continue
-                fx = gx - c0
-                fy = gy - r0
+                c0 = np.uint64(gx)
+                r0 = np.uint64(gy)
+                fx = gx - np.float64(c0)
+                fy = gy - np.float64(r0)
                 v = wi * wo * test_w[j]
                 vy = v * fy
                 v0 = v - vy
-                acc[r0, c0] += v0 - v0 * fx
-                acc[r0, c0 + 1] += v0 * fx
-                acc[r0 + 1, c0] += vy - vy * fx
-                acc[r0 + 1, c0 + 1] += vy * fx
+                k = r0 * row + c0
+                flat[k] += v0 - v0 * fx
+                flat[k + np.uint64(1)] += v0 * fx
+                flat[k + row] += vy - vy * fx
+                flat[k + row + np.uint64(1)] += vy * fx
 
 
 def accumulate_votes_reference(train_xy, train_theta, train_w, alpha, scale, test_xy, test_theta,
