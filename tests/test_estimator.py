@@ -108,6 +108,23 @@ def test_a_verification_that_finds_nothing_falls_back_to_the_polished_search(
     assert fallen_back.modes == unverified.modes and fallen_back.best is not None
 
 
+def test_verification_with_per_scale_search_and_local_refinement(synthetic_training, draw):
+    from posevote.data import object_box
+    from posevote.geometry import box_iou
+
+    images, az, boxes = synthetic_training
+    # Seven scales in object units: the verification re-searches only those near
+    # its box, and the local refinement then reads the maps of those scales.
+    search = SearchOptions(scale_range=(0.7, 1.3), scale_steps=7, object_kernel=True,
+                           chance_correction=True)
+    est = PoseEstimator(search=search, local_refinement=True,
+                        appearance=AppearanceOptions(candidates=5, jitter=0.0))
+    est.fit(images, az, boxes=boxes)
+    img = draw(np.radians(110.0))
+    best = est.estimate(img).best
+    assert best is not None and box_iou(best.box, object_box(img)) > 0.7
+
+
 def test_blank_image_is_not_found(fitted_estimator):
     result = fitted_estimator.estimate(np.zeros((64, 64)))
     assert not result.found and result.best is None and result.modes == ()

@@ -358,7 +358,8 @@ class PoseEstimator(GroupedParams):
         fine = image_maps(feats, shape, setup) if hyps and (
             self.local_refinement or recognizing) else None
         if self.local_refinement and hyps and fine is not None:
-            narrow = scale_maps(feats, shape, setup) \
+            # The probes' own scales: after the verification, only those near its box.
+            narrow = scale_maps(feats, shape, setup, scales=probes.scale) \
                 if self.search.object_kernel and self.fitting else None
             hyps[0] = local_refine(probes, modes[0], hyps[0], model, fine, setup,
                                    fitting=self.fitting, scale_maps=narrow)

@@ -221,10 +221,16 @@ def image_maps(features: EdgeFeatures, shape: tuple[int, int], setup: SearchSetu
 
 
 def scale_maps(features: EdgeFeatures, shape: tuple[int, int], setup: SearchSetup, *,
-               sigma: float | None = None, search: bool = False) -> list[TestMaps]:
-    """One set of maps per searched scale, the features divided by it (object units)."""
+               sigma: float | None = None, search: bool = False,
+               scales: NDArray[np.float64] | None = None) -> list[TestMaps]:
+    """One set of maps per scale, the features divided by it (object units).
+
+    ``scales`` defaults to the search grid's; a search narrowed to a few
+    scales (the verification's) passes its own.
+    """
+    grid = setup.options.grid()[1] if scales is None else scales
     return [image_maps(*scaled_features(features, shape, float(s)), setup, sigma=sigma,
-                       scale=float(s), search=search) for s in setup.options.grid()[1]]
+                       scale=float(s), search=search) for s in grid]
 
 
 def map_bytes(shape: tuple[int, int], options: SearchOptions) -> int:
