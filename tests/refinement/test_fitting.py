@@ -36,6 +36,26 @@ def test_fit_recovers_continuous_pose():
     assert not coarse.refined and coarse.azimuth_deg in (40.0, 60.0)
 
 
+def test_unprobed_probes_are_left_out_of_the_fit():
+    from dataclasses import replace
+
+    probes = synthetic_probes(np.radians(47.0))
+    # A ranking search: scales 0, 2, 4 everywhere, 1 and 3 only at 40 and 60 degrees.
+    probed = np.zeros(probes.score.shape, dtype=bool)
+    probed[:, :, ::2] = True
+    probed[[2, 3], :, 1::2] = True
+    ranked = replace(probes, score=np.where(probed, probes.score, 0.0), probed=probed)
+    mode = find_modes(ranked)[0]
+    hyp = refine_mode(ranked, mode, view_shape=1.0)
+    full = refine_mode(probes, mode, view_shape=1.0)
+    assert hyp.azimuth_deg == pytest.approx(full.azimuth_deg, abs=0.01)
+    assert hyp.azimuth_deg == pytest.approx(47.0, abs=0.01)
+    assert hyp.scale == pytest.approx(1.04, abs=0.001)
+    # Read as scores, the zeros pull the fit off (here by over a degree).
+    unmarked = refine_mode(replace(ranked, probed=None), mode, view_shape=1.0)
+    assert abs(unmarked.azimuth_deg - 47.0) > 1.0
+
+
 @pytest.mark.parametrize("truth", [45.0, 55.0])
 def test_sharp_profile_is_not_pulled_toward_the_probes(truth):
     # A profile linear in the angle, 5 degrees from a probed viewpoint: the

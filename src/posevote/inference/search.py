@@ -282,6 +282,9 @@ class ProbeSet:
         That translation: the reference point ``(u, v)``, pixels.
     box : ndarray, shape (V, 2)
         Object box width and height at each viewpoint, model units.
+    probed : ndarray of bool, shape (V, A, S), or None
+        The probes a ranking search probed (the others score 0 without
+        having been scored); None: every probe.
     """
 
     azimuth: NDArray[np.float64]
@@ -291,6 +294,7 @@ class ProbeSet:
     score: NDArray[np.float64]
     translation: NDArray[np.float64]
     box: NDArray[np.float64]
+    probed: NDArray[np.bool_] | None = None
 
     @cached_property
     def directions(self) -> NDArray[np.float64]:
@@ -587,10 +591,10 @@ def probe(model: PoseModel, maps: TestMaps | Sequence[TestMaps | None], setup: S
         Called with 1 after each viewpoint.
     polish : bool, optional
         False leaves each probe at its best vote cell (a ranking for the
-        appearance verification, which moves the boxes itself); with
-        per-scale maps the scales between every other one are then probed
-        only at the best viewpoints (:data:`RANKING_VIEWPOINTS`), the
-        others scoring 0.
+        appearance verification, which moves the boxes itself). With
+        per-scale maps, polished or not, the scales between every other one
+        are probed only at the best viewpoints (:data:`RANKING_VIEWPOINTS`),
+        the others scoring 0.
 
     Returns
     -------
@@ -630,7 +634,7 @@ def probe(model: PoseModel, maps: TestMaps | Sequence[TestMaps | None], setup: S
         inplanes=inplanes, viewpoint_kappa=setup.viewpoint_kappa, use_weights=setup.use_weights,
         k1_cutoff=K1_CUTOFF, max_voters=MAX_VOTERS, max_features=opts.max_search_features,
         n_candidates=VOTE_CANDIDATES, n_threads=setup.n_threads, polish=polish)
-    if polish or isinstance(given, TestMaps) or len(scales) < 4 or len(az) < 6:
+    if isinstance(given, TestMaps) or len(scales) < 4 or len(az) < 6:
         return probe_poses(model, given, azimuths=az, elevations=el, scales=scales,
                            progress=progress, **kw)
     return _ranking_probes(model, given, az, el, scales, progress=progress, **kw)
@@ -658,6 +662,9 @@ def _ranking_probes(model: PoseModel, maps: list[TestMaps], az: NDArray[np.float
     score[:, :, even], translation[:, :, even] = first.score, first.translation
     rows = np.ix_(best, np.arange(n_a), odd)
     score[rows], translation[rows] = between.score, between.translation
+    probed = np.zeros(score.shape, dtype=bool)
+    probed[:, :, even] = True
+    probed[rows] = True
     return ProbeSet(azimuth=first.azimuth, elevation=first.elevation, inplane=first.inplane,
                     scale=np.asarray(scales, dtype=float), score=score, translation=translation,
-                    box=first.box)
+                    box=first.box, probed=probed)

@@ -212,6 +212,10 @@ def _fit(probes: ProbeSet, v0: int, a0: int, s0: int, radius_steps: float, span:
     a_idx = np.arange(max(0, a0 - span), min(len(probes.inplane), a0 + span + 1))
     s_idx = np.arange(max(0, s0 - span), min(len(probes.scale), s0 + span + 1))
     vv, aa, ss = np.meshgrid(views, a_idx, s_idx, indexing="ij")
+    # A ranking search's unprobed probes hold 0 without a score: left out of the fit.
+    if probes.probed is not None:
+        kept = probes.probed[vv, aa, ss]
+        vv, aa, ss = vv[kept], aa[kept], ss[kept]
     y = probes.score[vv, aa, ss].ravel()
     X = {"dir": directions[vv.ravel()], "inplane": probes.inplane[aa.ravel()],
          "logs": np.log(probes.scale[ss.ravel()])}
