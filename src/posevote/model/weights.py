@@ -44,7 +44,9 @@ def feature_weights(model: PoseModel, *, position_sigma: float, orientation_kapp
     viewpoint_kappa : float
         Concentration of the pose kernel K1 on viewing directions.
     max_pairs : int, optional
-        Guard on the number of nearby feature pairs examined per instance.
+        Guard on the number of nearby feature pairs listed per instance, by
+        the path for instances of over 20 million features x views (smaller
+        ones visit the pairs without listing them).
     n_threads : int, optional
         Instances weighed at once (each on its own: the same weights).
 
@@ -56,8 +58,9 @@ def feature_weights(model: PoseModel, *, position_sigma: float, orientation_kapp
     Raises
     ------
     ValueError
-        If the model has so many overlapping features that more than
-        ``max_pairs`` pairs would be examined.
+        If an instance of over 20 million features x views has so many
+        overlapping features that more than ``max_pairs`` pairs would be
+        listed.
     """
     weights = np.zeros(model.n_features)
     directions = model.view_directions()
@@ -91,25 +94,23 @@ def _instance_weights(xy: NDArray[np.float64], theta: NDArray[np.float64],
     m, k_views = len(theta), len(directions)
     if m == 0:
         return np.zeros(0)
-    # imported where used, so that a command-line start does not pay for it
-    from scipy.spatial import cKDTree
-
-    tree = cKDTree(xy)
     radius = 3.0 * position_sigma
-    pairs = tree.query_pairs(radius, output_type="ndarray")
-    if len(pairs) > max_pairs:
-        raise ValueError(f"{len(pairs)} feature pairs to weigh (max_pairs={max_pairs}); "
-                         "lower the feature budget (max_train_features)")
     if m * k_views <= dense_cells:
         # psi~_k(x_i) for every feature and view at once: the strongest
         # response among the features of view k (0 where none is near).
         # The strongest response is the exponential of the largest exponent:
-        # one exponential per table cell instead of one per pair.
+        # one exponential per table cell instead of one per pair. The pairs
+        # within reach are visited on a grid of cells, never listed.
         psi_all = np.full((m, k_views), -np.inf)
-        _strongest_exponents(np.ascontiguousarray(xy, dtype=np.float64),
-                             np.ascontiguousarray(theta, dtype=np.float64),
-                             np.ascontiguousarray(view, dtype=np.int64),
-                             np.ascontiguousarray(pairs, dtype=np.int64), float(position_sigma),
+        xy = np.ascontiguousarray(xy, dtype=np.float64)
+        cells = np.floor((xy - xy.min(axis=0)) / radius).astype(np.int64)
+        n_cols, n_rows = (int(n) + 1 for n in cells.max(axis=0))
+        key = cells[:, 1] * n_cols + cells[:, 0]
+        order = np.argsort(key, kind="stable")
+        start = np.searchsorted(key[order], np.arange(n_rows * n_cols + 1))
+        _strongest_exponents(xy, np.ascontiguousarray(theta, dtype=np.float64),
+                             np.ascontiguousarray(view, dtype=np.int64), cells, order, start,
+                             n_rows, n_cols, float(radius), float(position_sigma),
                              float(orientation_kappa), psi_all)
         np.exp(psi_all, out=psi_all)
         k1_views = viewpoint_kernel(directions[:, None, :], directions[None, :, :],
@@ -118,6 +119,13 @@ def _instance_weights(xy: NDArray[np.float64], theta: NDArray[np.float64],
         return np.clip(1.0 - ambiguity, 0.0, 1.0)
     # The pure-numpy path (the reference of the dense one in the tests):
     # both directions of every pair, plus each feature with itself.
+    # imported where used, so that a command-line start does not pay for it
+    from scipy.spatial import cKDTree
+
+    pairs = cKDTree(xy).query_pairs(radius, output_type="ndarray")
+    if len(pairs) > max_pairs:
+        raise ValueError(f"{len(pairs)} feature pairs to weigh (max_pairs={max_pairs}); "
+                         "lower the feature budget (max_train_features)")
     i = np.concatenate([pairs[:, 0], pairs[:, 1], np.arange(m)])
     j = np.concatenate([pairs[:, 1], pairs[:, 0], np.arange(m)])
     d2 = np.sum((xy[i] - xy[j]) ** 2, axis=1)
@@ -136,24 +144,47 @@ def _instance_weights(xy: NDArray[np.float64], theta: NDArray[np.float64],
 
 
 @numba.njit(cache=True, nogil=True)
-def _strongest_exponents(xy, theta, view, pairs, sigma, kappa, out):  # pragma: no cover
+def _strongest_exponents(xy, theta, view, cells, order, start, n_rows, n_cols, radius, sigma,
+                         kappa, out):  # pragma: no cover - compiled
     """``out[i, k]``: the log of the strongest kernel response at feature i of any
-    feature of view k (``out`` starts at -inf).
+    feature of view k within ``radius`` (``out`` starts at -inf).
 
-    ``pairs`` are the feature pairs within reach (each once); a feature's
-    response to itself is 1.
+    The features are sorted into square cells of side ``radius`` (``cells``
+    holds each one's column and row on an ``n_rows`` x ``n_cols`` grid, keyed
+    ``row * n_cols + col``; ``order`` sorts the features by key and
+    ``start[key]`` is where a key's run begins): each feature meets
+    the later features of its own cell and those of the four cells after it
+    in row-major order among its eight neighbours, so each pair once. A
+    feature's response to itself is 1.
     """
     for a in range(xy.shape[0]):
         out[a, view[a]] = 0.0
     inv = 1.0 / (2.0 * sigma * sigma)
-    for p in range(pairs.shape[0]):
-        a = pairs[p, 0]
-        b = pairs[p, 1]
-        dx = xy[a, 0] - xy[b, 0]
-        dy = xy[a, 1] - xy[b, 1]
-        # Both kernels' exponents summed.
-        r = kappa * (np.cos(2.0 * (theta[a] - theta[b])) - 1.0) - (dx * dx + dy * dy) * inv
-        if r > out[a, view[b]]:
-            out[a, view[b]] = r
-        if r > out[b, view[a]]:
-            out[b, view[a]] = r
+    r2 = radius * radius
+    for pa in range(order.shape[0]):
+        a = order[pa]
+        col = cells[a, 0]
+        row = cells[a, 1]
+        for dr, dc in ((0, 0), (0, 1), (1, -1), (1, 0), (1, 1)):
+            rr = row + dr
+            cc = col + dc
+            if rr >= n_rows or cc < 0 or cc >= n_cols:
+                continue
+            key = rr * n_cols + cc
+            lo = start[key]
+            hi = start[key + 1]
+            if dr == 0 and dc == 0:
+                lo = pa + 1
+            for pb in range(lo, hi):
+                b = order[pb]
+                dx = xy[a, 0] - xy[b, 0]
+                dy = xy[a, 1] - xy[b, 1]
+                d2 = dx * dx + dy * dy
+                if d2 > r2:
+                    continue
+                # Both kernels' exponents summed.
+                r = kappa * (np.cos(2.0 * (theta[a] - theta[b])) - 1.0) - d2 * inv
+                if r > out[a, view[b]]:
+                    out[a, view[b]] = r
+                if r > out[b, view[a]]:
+                    out[b, view[a]] = r
