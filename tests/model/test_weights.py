@@ -19,17 +19,20 @@ def test_weights_penalise_the_shared_feature(toy_model):
     assert w[shared] == pytest.approx(1 - 2 / 3, abs=0.01)
 
 
-@pytest.mark.parametrize("layout", ["square", "row", "duplicates"])
+@pytest.mark.parametrize("layout", ["square", "row", "duplicates", "far apart"])
 def test_weights_dense_and_sorted_paths_agree(layout):
     from posevote.model.weights import _instance_weights
 
     rng = np.random.default_rng(3)
     m, k = 400, 12
     # The dense path visits pairs on a grid of cells: a square of many
-    # cells, a single row of them, and features sharing a place.
+    # cells, a single row of them, features sharing a place, and clusters
+    # so far apart that the cells are made wider than the kernel's reach.
+    clusters = np.repeat(rng.choice([-5e4, 5e4], (4, 2)), m // 4, axis=0)
     xy = {"square": rng.uniform(-20, 20, (m, 2)),
           "row": np.column_stack([rng.uniform(-60, 60, m), rng.uniform(0, 1, m)]),
-          "duplicates": np.repeat(rng.uniform(-10, 10, (m // 4, 2)), 4, axis=0)}[layout]
+          "duplicates": np.repeat(rng.uniform(-10, 10, (m // 4, 2)), 4, axis=0),
+          "far apart": clusters + rng.uniform(-10, 10, (m, 2))}[layout]
     theta = rng.uniform(0, np.pi, m)
     view = rng.integers(0, k, m)
     az = np.linspace(0, 2 * np.pi, k, endpoint=False)

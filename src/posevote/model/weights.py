@@ -81,6 +81,9 @@ def feature_weights(model: PoseModel, *, position_sigma: float, orientation_kapp
     return weights
 
 
+_MAX_CELLS_PER_SIDE = 1024
+
+
 def _instance_weights(xy: NDArray[np.float64], theta: NDArray[np.float64],
                       view: NDArray[np.int64], directions: NDArray[np.float64], *,
                       position_sigma: float, orientation_kappa: float, viewpoint_kappa: float,
@@ -103,7 +106,11 @@ def _instance_weights(xy: NDArray[np.float64], theta: NDArray[np.float64],
         # within reach are visited on a grid of cells, never listed.
         psi_all = np.full((m, k_views), -np.inf)
         xy = np.ascontiguousarray(xy, dtype=np.float64)
-        cells = np.floor((xy - xy.min(axis=0)) / radius).astype(np.int64)
+        # Cells at least the reach wide, and at most MAX_CELLS_PER_SIDE of them a side
+        # (a tiny kernel over a wide model would otherwise ask for billions).
+        low = xy.min(axis=0)
+        side = max(radius, float(np.max(xy.max(axis=0) - low)) / _MAX_CELLS_PER_SIDE)
+        cells = np.floor((xy - low) / side).astype(np.int64)
         n_cols, n_rows = (int(n) + 1 for n in cells.max(axis=0))
         key = cells[:, 1] * n_cols + cells[:, 0]
         order = np.argsort(key, kind="stable")
@@ -149,7 +156,7 @@ def _strongest_exponents(xy, theta, view, cells, order, start, n_rows, n_cols, r
     """``out[i, k]``: the log of the strongest kernel response at feature i of any
     feature of view k within ``radius`` (``out`` starts at -inf).
 
-    The features are sorted into square cells of side ``radius`` (``cells``
+    The features are sorted into square cells at least ``radius`` wide (``cells``
     holds each one's column and row on an ``n_rows`` x ``n_cols`` grid, keyed
     ``row * n_cols + col``; ``order`` sorts the features by key and
     ``start[key]`` is where a key's run begins): each feature meets
