@@ -81,3 +81,82 @@ def test_no_modes_on_empty_scores():
     probes = synthetic_probes(0.0)
     empty = ProbeSet(**{**probes.__dict__, "score": np.zeros_like(probes.score)})
     assert find_modes(empty) == []
+
+
+def _fit_problem(turntable, view, inplane, scale, seed=0):
+    """A fit's inputs: probes around (40 deg, 10 deg), scores from the model plus noise."""
+    from posevote.refinement.fitting import _model
+
+    rng = np.random.default_rng(seed)
+    az, el = np.meshgrid(np.radians([20, 30, 40, 50, 60]),
+                         np.radians([10.0]) if turntable else np.radians([0, 10, 20]))
+    a, s = np.radians([-20.0, -10.0, 0.0, 10.0, 20.0]), np.log([0.8, 0.9, 1.0, 1.1, 1.2])
+    vv, aa, ss = np.meshgrid(np.arange(az.size), np.arange(5), np.arange(5), indexing="ij")
+    X = {"dir": viewing_direction(az.ravel(), el.ravel())[vv.ravel()],
+         "inplane": a[aa.ravel()], "logs": s[ss.ravel()]}
+    layout = {"view": view, "inplane": inplane, "scale": scale, "view_shape": 0.6,
+              "fixed_elevation": np.radians(10.0) if turntable else None}
+    truth, p0, lo, hi = [0.1, 0.8], [0.1, 0.5], [0.0, 0.0], [1.0, 4.0]
+    if view:
+        n = 2 if turntable else 3
+        truth += ([np.radians(43.0)] + ([] if turntable else [np.radians(7.0)]) + [25.0])
+        p0 += [np.radians(40.0)] + ([] if turntable else [np.radians(10.0)]) + [10.0]
+        lo += [np.radians(30.0)] + ([] if turntable else [0.0]) + [1.0]
+        hi += [np.radians(50.0)] + ([] if turntable else [np.radians(20.0)]) + [500.0]
+        assert len(truth) == 2 + n
+    if inplane:
+        truth, p0 = truth + [0.03, 20.0], p0 + [0.0, 10.0]
+        lo, hi = lo + [-0.17, 1.0], hi + [0.17, 500.0]
+    if scale:
+        truth, p0 = truth + [0.02, 0.08], p0 + [0.0, 0.1]
+        lo, hi = lo + [-0.1, 0.005], hi + [0.1, 0.4]
+    y = _model(np.array(truth), layout, X)[0] + rng.normal(0.0, 0.005, len(X["logs"]))
+    return (np.array(p0), np.array(lo), np.array(hi), X, y, layout), np.array(truth)
+
+
+LAYOUTS = [(t, v, a, s) for t in (True, False) for v in (True, False) for a in (True, False)
+           for s in (True, False) if v or a or s]
+
+
+@pytest.mark.parametrize("turntable,view,inplane,scale", LAYOUTS)
+def test_compiled_model_matches_the_reference(turntable, view, inplane, scale):
+    from posevote.refinement.fitting import _model, _model_kernel
+
+    (p0, lo, hi, X, y, layout), truth = _fit_problem(turntable, view, inplane, scale)
+    params = 0.5 * (truth + p0)
+    f, jac = _model(params, layout, X)
+    f2, jac2 = np.empty_like(f), np.empty_like(jac)
+    _model_kernel(params, X["dir"], X["inplane"], X["logs"], view, inplane, scale,
+                  np.nan if turntable is False else np.radians(10.0), 0.6, f2, jac2)
+    np.testing.assert_allclose(f2, f, rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(jac2, jac, rtol=1e-10, atol=1e-12)
+    # and the Jacobian is the model's own derivative
+    eps = 1e-6
+    numeric = np.stack([(_model(params + eps * e, layout, X)[0]
+                         - _model(params - eps * e, layout, X)[0]) / (2 * eps)
+                        for e in np.eye(len(params))], axis=1)
+    np.testing.assert_allclose(jac, numeric, rtol=1e-5, atol=1e-7)
+
+
+@pytest.mark.parametrize("turntable,view,inplane,scale", LAYOUTS)
+def test_compiled_fit_agrees_with_scipy(turntable, view, inplane, scale):
+    from posevote.refinement.fitting import solve_fit, solve_fit_reference
+
+    problem, truth = _fit_problem(turntable, view, inplane, scale)
+    fast, ref = solve_fit(*problem, 1e-8), solve_fit_reference(*problem, 1e-8)
+    means = [2, 3] if view and not turntable else [2] if view else []
+    means += [len(truth) - 2 - 2 * scale] if inplane else []
+    means += [len(truth) - 2] if scale else []
+    # The means (what the estimate reads) agree to a hundredth of a degree.
+    np.testing.assert_allclose(fast[means], ref[means], atol=2e-4)
+    np.testing.assert_allclose(fast[means], truth[means], atol=0.02)
+
+
+def test_compiled_fit_stays_inside_its_bounds():
+    from posevote.refinement.fitting import solve_fit
+
+    (p0, lo, hi, X, y, layout), truth = _fit_problem(True, True, True, True)
+    hi[2] = np.radians(41.0)  # the truth (43 degrees) is past the bound
+    p = solve_fit(p0, lo, hi, X, y, layout, 1e-8)
+    assert np.all(p >= lo) and np.all(p <= hi)
+    assert p[2] == pytest.approx(hi[2], abs=1e-4)

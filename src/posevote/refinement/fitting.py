@@ -27,6 +27,7 @@ flat profile) is replaced by the best probe's value.
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import least_squares
@@ -53,6 +54,11 @@ VIEW_SHAPE = 0.6
 #: Viewpoints within this many probe spacings of a mode take part in its fit
 #: (and in the local refinement's profile): two neighbours on either side.
 FIT_RADIUS_STEPS = 2.5
+
+#: Most evaluations of the fitted distribution in one fit.
+_MAX_EVALUATIONS = 100
+
+_TO_BOUND = 0.99
 
 
 def find_modes(probes: ProbeSet, *, max_modes: int = 3, min_separation: float = np.radians(30.0),
@@ -157,6 +163,154 @@ def _model(params: NDArray[np.float64], layout: dict, X: dict
     return b + amp * e, jac
 
 
+@numba.njit(cache=True, nogil=True)
+def _model_kernel(params, dirs, inplane, logs, has_view, has_inplane, has_scale, fixed_el, shape,
+                  f, jac):  # pragma: no cover - compiled
+    """:func:`_model` into ``f`` and ``jac``; ``fixed_el`` NaN fits the elevation."""
+    turntable = not np.isnan(fixed_el)
+    n_view = 2 if turntable else 3
+    j_in = 2 + (n_view if has_view else 0)
+    j_sc = j_in + (2 if has_inplane else 0)
+    b = params[0]
+    amp = params[1]
+    mu = np.zeros(3)
+    d_az = np.zeros(3)
+    d_el = np.zeros(3)
+    k_v = mu_a = k_a = mu_s = s_s = 0.0
+    if has_view:
+        mu_az = params[2]
+        mu_el = fixed_el if turntable else params[3]
+        k_v = params[2 + n_view - 1]
+        ca, sa = np.cos(-mu_az), np.sin(-mu_az)
+        ce, se = np.cos(mu_el), np.sin(mu_el)
+        mu[0], mu[1], mu[2] = ce * ca, ce * sa, se
+        d_az[0], d_az[1] = ce * sa, -ce * ca
+        d_el[0], d_el[1], d_el[2] = -se * ca, -se * sa, ce
+    if has_inplane:
+        mu_a, k_a = params[j_in], params[j_in + 1]
+    if has_scale:
+        mu_s, s_s = params[j_sc], params[j_sc + 1]
+    for k in range(dirs.shape[0]):
+        expo = 0.0
+        one_g = powered = c = s = r = 0.0
+        if has_view:
+            dot = dirs[k, 0] * mu[0] + dirs[k, 1] * mu[1] + dirs[k, 2] * mu[2]
+            one_g = max(1.0 - dot, 1e-12)
+            powered = one_g ** shape
+            expo -= k_v * powered
+        if has_inplane:
+            c = np.cos(inplane[k] - mu_a)
+            s = np.sin(inplane[k] - mu_a)
+            expo += k_a * (c - 1.0)
+        if has_scale:
+            r = logs[k] - mu_s
+            expo -= r * r / (2.0 * s_s * s_s)
+        e = np.exp(expo)
+        ae = amp * e
+        f[k] = b + ae
+        jac[k, 0] = 1.0
+        jac[k, 1] = e
+        if has_view:
+            slope = ae * k_v * shape * powered / one_g
+            jac[k, 2] = slope * (dirs[k, 0] * d_az[0] + dirs[k, 1] * d_az[1])
+            if not turntable:
+                jac[k, 3] = slope * (dirs[k, 0] * d_el[0] + dirs[k, 1] * d_el[1]
+                                     + dirs[k, 2] * d_el[2])
+            jac[k, 2 + n_view - 1] = -ae * powered
+        if has_inplane:
+            jac[k, j_in] = ae * k_a * s
+            jac[k, j_in + 1] = ae * (c - 1.0)
+        if has_scale:
+            jac[k, j_sc] = ae * r / (s_s * s_s)
+            jac[k, j_sc + 1] = ae * r * r / (s_s * s_s * s_s)
+
+
+@numba.njit(cache=True, nogil=True)
+def _least_squares_kernel(p0, lo, hi, dirs, inplane, logs, y, has_view, has_inplane, has_scale,
+                          fixed_el, shape, tol, max_nfev):  # pragma: no cover - compiled
+    """Bounded Levenberg-Marquardt on :func:`_model_kernel`'s residuals.
+
+    The damping is scaled by the Jacobian's column norms (scipy's
+    ``x_scale="jac"``); a parameter on a bound that the gradient pushes
+    outward is held there; a step past a bound goes halfway to it (an
+    amplitude clipped to 0 would flatten the model and stop the fit on a
+    zero gradient). Stops as scipy's
+    ``least_squares`` does: the cost falls by less than ``tol`` of itself
+    (ftol), the step is below ``tol`` of the parameters (xtol), or the
+    gradient is nearly orthogonal to the residuals (gtol). Returns the
+    parameters and the evaluations spent.
+    """
+    m = p0.shape[0]
+    n = y.shape[0]
+    p = p0.copy()
+    f = np.empty(n)
+    jac = np.empty((n, m))
+    f_new = np.empty(n)
+    jac_new = np.empty((n, m))
+    _model_kernel(p, dirs, inplane, logs, has_view, has_inplane, has_scale, fixed_el, shape, f,
+                  jac)
+    r = f - y
+    cost = 0.5 * np.dot(r, r)
+    nfev = 1
+    d2 = np.zeros(m)
+    lam = 1e-3
+    nu = 2.0
+    while nfev < max_nfev and np.isfinite(cost):
+        a = jac.T @ jac
+        g = jac.T @ r
+        rnorm = np.sqrt(2.0 * cost)
+        worst = 0.0
+        for i in range(m):
+            d2[i] = max(d2[i], a[i, i])
+            if a[i, i] > 0.0 and rnorm > 0.0:
+                worst = max(worst, abs(g[i]) / (np.sqrt(a[i, i]) * rnorm))
+        if worst <= tol:
+            break
+        while nfev < max_nfev:
+            mat = a.copy()
+            rhs = -g
+            for i in range(m):
+                mat[i, i] += lam * (d2[i] if d2[i] > 0.0 else 1.0)
+                if (p[i] <= lo[i] and g[i] > 0.0) or (p[i] >= hi[i] and g[i] < 0.0):
+                    mat[i, :] = 0.0
+                    mat[:, i] = 0.0
+                    mat[i, i] = 1.0
+                    rhs[i] = 0.0
+            delta = np.linalg.solve(mat, rhs)
+            p_new = p + delta
+            for i in range(m):
+                if p_new[i] < lo[i]:
+                    p_new[i] = p[i] + _TO_BOUND * (lo[i] - p[i])
+                elif p_new[i] > hi[i]:
+                    p_new[i] = p[i] + _TO_BOUND * (hi[i] - p[i])
+            step = p_new - p
+            _model_kernel(p_new, dirs, inplane, logs, has_view, has_inplane, has_scale, fixed_el,
+                          shape, f_new, jac_new)
+            nfev += 1
+            r_new = f_new - y
+            cost_new = 0.5 * np.dot(r_new, r_new)
+            predicted = -(np.dot(g, step) + 0.5 * np.dot(step, a @ step))
+            small_step = np.sqrt(np.dot(step, step)) < tol * (tol + np.sqrt(np.dot(p, p)))
+            if np.isfinite(cost_new) and cost_new < cost:
+                rho = (cost - cost_new) / predicted if predicted > 0.0 else 1.0
+                converged = (cost - cost_new < tol * cost and rho > 0.25) or small_step
+                p = p_new
+                f, f_new = f_new, f
+                jac, jac_new = jac_new, jac
+                r = r_new
+                cost = cost_new
+                lam *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
+                nu = 2.0
+                if converged:
+                    return p, nfev
+                break
+            lam *= nu
+            nu *= 2.0
+            if small_step or lam > 1e16:
+                return p, nfev
+    return p, nfev
+
+
 def refine_mode(probes: ProbeSet, viewpoint: int, *, radius_steps: float = 2.5, span: int = 2,
                 fit: bool = True, tolerance: float = FIT_TOLERANCE,
                 view_shape: float = VIEW_SHAPE) -> Hypothesis:
@@ -175,8 +329,8 @@ def refine_mode(probes: ProbeSet, viewpoint: int, *, radius_steps: float = 2.5, 
     fit : bool, optional
         False returns the best discrete probe (the ablation "without fitting").
     tolerance : float, optional
-        Relative tolerance of the least-squares fit (``ftol``, ``xtol`` and
-        ``gtol`` of :func:`scipy.optimize.least_squares`).
+        Relative tolerance of the least-squares fit (its ``ftol``, ``xtol``
+        and ``gtol``, as :func:`scipy.optimize.least_squares` reads them).
     view_shape : float, optional
         Exponent ``g`` of the viewpoint term (module docstring): 1 is the
         von Mises-Fisher kernel, smaller values a sharper peak.
@@ -253,30 +407,14 @@ def _fit(probes: ProbeSet, v0: int, a0: int, s0: int, radius_steps: float, span:
         lo += [mu0 - step_s, step_s / 20.0]
         hi += [mu0 + step_s, step_s * 4.0]
     p0 = np.clip(np.asarray(p0, dtype=float), lo, hi)
-    try:
-        memo: dict[bytes, tuple[NDArray[np.float64], NDArray[np.float64]]] = {}
-
-        def evaluate(p: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-            # scipy asks for the residuals and the Jacobian at the same point
-            # separately; compute both once.
-            key = p.tobytes()
-            if key not in memo:
-                memo.clear()
-                memo[key] = _model(p, layout, X)
-            return memo[key]
-
-        result = least_squares(lambda p: evaluate(p)[0] - y, p0, jac=lambda p: evaluate(p)[1],
-                               bounds=(lo, hi), method="trf", max_nfev=100, x_scale="jac",
-                               ftol=tolerance, xtol=tolerance, gtol=tolerance)
-    except (ValueError, np.linalg.LinAlgError):
-        return None
-    # Status 0 (evaluation budget spent) still leaves a usable, bounded fit.
-    if result.status < 0 or not np.all(np.isfinite(result.x)):
+    fit = solve_fit(p0, np.asarray(lo, dtype=float), np.asarray(hi, dtype=float), X, y, layout,
+                    tolerance)
+    if fit is None:
         return None
     # An in-plane or scale mean that ends on its bound (a flat profile) is not
     # trusted: that dimension keeps the best probe's value. Viewpoint means
     # may legitimately reach the bound (the truth halfway between views).
-    p = result.x.copy()
+    p = fit.copy()
     n_view = (2 if probes.turntable else 3) if layout["view"] else 0
     on_bound = np.isclose(p, lo) | np.isclose(p, hi)
     on_bound[:2 + n_view] = False
@@ -294,6 +432,47 @@ def _fit(probes: ProbeSet, v0: int, a0: int, s0: int, radius_steps: float, span:
     if layout["scale"]:
         scale = float(np.exp(p[i]))
     return float(az), float(el), float(alpha), float(scale)
+
+
+def solve_fit(p0: NDArray[np.float64], lo: NDArray[np.float64], hi: NDArray[np.float64], X: dict,
+              y: NDArray[np.float64], layout: dict, tolerance: float
+              ) -> NDArray[np.float64] | None:
+    """Bounded least-squares parameters of :func:`_model` to ``y`` (compiled), or None."""
+    fixed = layout["fixed_elevation"]
+    p, _ = _least_squares_kernel(
+        p0, lo, hi, np.ascontiguousarray(X["dir"], dtype=np.float64),
+        np.ascontiguousarray(X["inplane"], dtype=np.float64),
+        np.ascontiguousarray(X["logs"], dtype=np.float64), np.ascontiguousarray(y, dtype=np.float64),
+        layout["view"], layout["inplane"], layout["scale"], np.nan if fixed is None else fixed,
+        float(layout["view_shape"]), float(tolerance), _MAX_EVALUATIONS)
+    return p if np.all(np.isfinite(p)) else None
+
+
+def solve_fit_reference(p0: NDArray[np.float64], lo: NDArray[np.float64], hi: NDArray[np.float64],
+                        X: dict, y: NDArray[np.float64], layout: dict, tolerance: float
+                        ) -> NDArray[np.float64] | None:
+    """:func:`solve_fit` by scipy's trust-region reflective least squares (the reference)."""
+    try:
+        memo: dict[bytes, tuple[NDArray[np.float64], NDArray[np.float64]]] = {}
+
+        def evaluate(p: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+            # scipy asks for the residuals and the Jacobian at the same point
+            # separately; compute both once.
+            key = p.tobytes()
+            if key not in memo:
+                memo.clear()
+                memo[key] = _model(p, layout, X)
+            return memo[key]
+
+        result = least_squares(lambda p: evaluate(p)[0] - y, p0, jac=lambda p: evaluate(p)[1],
+                               bounds=(lo, hi), method="trf", max_nfev=_MAX_EVALUATIONS,
+                               x_scale="jac", ftol=tolerance, xtol=tolerance, gtol=tolerance)
+    except (ValueError, np.linalg.LinAlgError):
+        return None
+    # Status 0 (evaluation budget spent) still leaves a usable, bounded fit.
+    if result.status < 0 or not np.all(np.isfinite(result.x)):
+        return None
+    return np.asarray(result.x, dtype=np.float64)
 
 
 def _box_at(probes: ProbeSet, az: float, el: float) -> NDArray[np.float64]:
