@@ -55,3 +55,20 @@ def test_recognition_names_the_winner_and_abstains_below_the_margin(two_instance
     same, none, _ = recognize(hyps, feats, est.full_model_, maps, fine, setup,
                               RecognitionOptions(margin=50.0, search=False), **kw)
     assert none == "" and same == hyps
+
+
+def test_only_the_shortlist_is_judged(two_instances, monkeypatch):
+    import posevote.refinement.instance as instance
+    from posevote.refinement.local import pose_score
+
+    est, feats, _, fine, setup, hyps = two_instances
+    full = explained([hyps[0]] * 2, feats, est.full_model_, fine, setup)
+    monkeypatch.setattr(instance, "RECOGNITION_SHORTLIST", 1)
+    short = explained([hyps[0]] * 2, feats, est.full_model_, fine, setup)
+    start = [pose_score(hyps[0], est.full_model_.instance_model(i), fine,
+                        max_features=instance.ALIGN_FEATURES, **instance._kw(setup))
+             for i in range(2)]
+    kept = int(np.argmax(start))
+    assert start[kept] > 0 and short[1 - kept] == 0.0 and short[kept] > 0.0
+    # Judged in its own box rather than the union of both: about the same fraction.
+    assert short[kept] == pytest.approx(full[kept], rel=0.2)

@@ -30,7 +30,7 @@ from posevote.inference.search import SearchSetup, probe
 from posevote.model.density import PoseModel
 from posevote.model.kernels import K1_CUTOFF, ORIENTATION_KAPPA
 from posevote.refinement.fitting import FIT_RADIUS_STEPS, refine_mode
-from posevote.refinement.local import local_refine, polish_pose
+from posevote.refinement.local import local_refine, polish_pose, pose_score
 from posevote.results import Hypothesis
 
 #: Without ``search``, instances are scored at this many of the best category
@@ -42,6 +42,14 @@ RECOGNITION_MODES = 2
 #: even stride): the alignment only places the instance for the judgement,
 #: and a third of the features chose the same instances on epfl-cv.
 ALIGN_FEATURES = 300
+
+#: Only this many instances, those whose exact score at their hypothesis (on
+#: ALIGN_FEATURES features, before the alignment) is highest, are aligned
+#: and judged; the others explain nothing. On epfl-cv (8 training cars a
+#: fold) 3, 4 or 5 chose as well as all 8, for 40% less of the
+#: recognition's time; on the COIL category cross-validation (4 instances
+#: a category) 3 cost 6 degrees of the summed mean errors.
+RECOGNITION_SHORTLIST = 4
 
 
 @dataclass(frozen=True, kw_only=True, repr=False)
@@ -82,7 +90,9 @@ def explained(hypotheses: Sequence[Hypothesis], features: EdgeFeatures, full: Po
     hypothesis (in-plane angle, scale and translation polished on the exact
     p(w) of :data:`ALIGN_FEATURES` of its features, since instances differ
     in shape); all instances are then judged on
-    the same test features, those in the union of their boxes.
+    the same test features, those in the union of their boxes. Of more than
+    :data:`RECOGNITION_SHORTLIST` instances, only those that score best
+    before the alignment are aligned and judged; the others get 0.
 
     Parameters
     ----------
@@ -99,19 +109,27 @@ def explained(hypotheses: Sequence[Hypothesis], features: EdgeFeatures, full: Po
     Returns
     -------
     ndarray, shape (n_instances,)
+        0 for the instances left off the shortlist.
     """
     kw = _kw(setup)
     subs = [full.instance_model(i) for i in range(len(full.instance_names))]
-    aligned = [polish_pose(h, sub, maps, max_features=ALIGN_FEATURES, **kw)
-               for h, sub in zip(hypotheses, subs, strict=True)]
+    judged = np.arange(len(subs))
+    if len(subs) > RECOGNITION_SHORTLIST:
+        start = [pose_score(h, sub, maps, max_features=ALIGN_FEATURES, **kw)
+                 for h, sub in zip(hypotheses, subs, strict=True)]
+        judged = np.sort(np.argsort(-np.array(start), kind="stable")[:RECOGNITION_SHORTLIST])
+    aligned = [polish_pose(hypotheses[int(i)], subs[i], maps, max_features=ALIGN_FEATURES, **kw)
+               for i in judged]
     corners = np.array([[h.box[0], h.box[1], h.box[0] + h.box[2], h.box[1] + h.box[3]]
                         for h in aligned])
     lo, hi = corners[:, :2].min(axis=0), corners[:, 2:].max(axis=0)
     box = (float(lo[0]), float(lo[1]), float(hi[0] - lo[0]), float(hi[1] - lo[1]))
-    return np.array([
-        explained_fraction(features, sub, h, box=box, position_sigma=setup.position_sigma,
+    fractions = np.zeros(len(subs))
+    fractions[judged] = [
+        explained_fraction(features, subs[i], h, box=box, position_sigma=setup.position_sigma,
                            orientation_kappa=ORIENTATION_KAPPA, **kw)
-        for sub, h in zip(subs, aligned, strict=True)])
+        for i, h in zip(judged, aligned, strict=True)]
+    return fractions
 
 
 def instance_refine(instance: int, hypothesis: Hypothesis, full: PoseModel,

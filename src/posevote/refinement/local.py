@@ -19,7 +19,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from posevote.inference.maps import TestMaps
-from posevote.inference.search import ProbeSet, SearchSetup, viewpoint_features
+from posevote.inference.search import (
+    ProbeSet,
+    SearchSetup,
+    ViewpointFeatures,
+    viewpoint_features,
+)
 from posevote.inference.voting import (
     gather_score,
     gather_score_reference,
@@ -75,14 +80,11 @@ def polish_pose(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps, *,
         The polished pose (or the input pose if nothing better was found),
         with its exact narrow-kernel score.
     """
-    feats = viewpoint_features(model, hypothesis.azimuth, hypothesis.elevation,
-                               viewpoint_kappa=viewpoint_kappa, use_weights=use_weights,
-                               k1_cutoff=k1_cutoff)
+    feats = _pose_features(hypothesis, model, viewpoint_kappa=viewpoint_kappa,
+                           use_weights=use_weights, k1_cutoff=k1_cutoff,
+                           max_features=max_features)
     if feats.weight.sum() <= 0:
         return hypothesis
-    if max_features is not None:
-        xy, theta, weight = subsample_features(feats.xy, feats.theta, feats.weight, max_features)
-        feats = replace(feats, xy=xy, theta=theta, weight=weight)
     radius = max(float(np.sqrt(np.mean(np.sum(feats.xy**2, axis=1)))) * hypothesis.scale, 1.0)
     # Work in units where one step moves a typical feature by about a pixel.
     unit = np.array([1.0 / radius, 1.0 / radius, 1.0, 1.0])
@@ -100,6 +102,36 @@ def polish_pose(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps, *,
     return replace(hypothesis, inplane=float(alpha), scale=scale, position=(float(u), float(v)),
                    box=box_from_pose(np.array([u, v]), feats.box * scale, float(alpha)),
                    score=float(best))
+
+
+def _pose_features(hypothesis: Hypothesis, model: PoseModel, *, viewpoint_kappa: float,
+                   use_weights: bool, k1_cutoff: float, max_features: int | None
+                   ) -> ViewpointFeatures:
+    """The view's features at the hypothesis's viewpoint, at most about ``max_features``."""
+    feats = viewpoint_features(model, hypothesis.azimuth, hypothesis.elevation,
+                               viewpoint_kappa=viewpoint_kappa, use_weights=use_weights,
+                               k1_cutoff=k1_cutoff)
+    if max_features is not None and feats.weight.sum() > 0:
+        xy, theta, weight = subsample_features(feats.xy, feats.theta, feats.weight, max_features)
+        feats = replace(feats, xy=xy, theta=theta, weight=weight)
+    return feats
+
+
+def pose_score(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps, *,
+               viewpoint_kappa: float, use_weights: bool = True, k1_cutoff: float = 0.1,
+               max_features: int | None = None) -> float:
+    """The exact p(w) of ``model`` at the hypothesis's pose as it stands (no polish).
+
+    Parameters as in :func:`polish_pose`; the score :func:`polish_pose`
+    starts from.
+    """
+    feats = _pose_features(hypothesis, model, viewpoint_kappa=viewpoint_kappa,
+                           use_weights=use_weights, k1_cutoff=k1_cutoff,
+                           max_features=max_features)
+    if feats.weight.sum() <= 0:
+        return 0.0
+    return float(gather_score(maps.density, maps.frame, feats.xy, feats.theta, feats.weight,
+                              hypothesis.inplane, hypothesis.scale, *hypothesis.position))
 
 
 #: The compass search starts with steps of this many units (about a pixel at
