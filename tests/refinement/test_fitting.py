@@ -160,3 +160,12 @@ def test_compiled_fit_stays_inside_its_bounds():
     p = solve_fit(p0, lo, hi, X, y, layout, 1e-8)
     assert np.all(p >= lo) and np.all(p <= hi)
     assert p[2] == pytest.approx(hi[2], abs=1e-4)
+
+
+def test_compiled_fit_refuses_non_finite_scores():
+    from posevote.refinement.fitting import solve_fit, solve_fit_reference
+
+    (p0, lo, hi, X, y, layout), _ = _fit_problem(True, True, True, True)
+    y[3] = np.nan
+    assert solve_fit(p0, lo, hi, X, y, layout, 1e-4) is None
+    assert solve_fit_reference(p0, lo, hi, X, y, layout, 1e-4) is None

@@ -438,13 +438,19 @@ def solve_fit(p0: NDArray[np.float64], lo: NDArray[np.float64], hi: NDArray[np.f
               y: NDArray[np.float64], layout: dict, tolerance: float
               ) -> NDArray[np.float64] | None:
     """Bounded least-squares parameters of :func:`_model` to ``y`` (compiled), or None."""
+    if not np.all(np.isfinite(y)):
+        return None
     fixed = layout["fixed_elevation"]
-    p, _ = _least_squares_kernel(
-        p0, lo, hi, np.ascontiguousarray(X["dir"], dtype=np.float64),
-        np.ascontiguousarray(X["inplane"], dtype=np.float64),
-        np.ascontiguousarray(X["logs"], dtype=np.float64), np.ascontiguousarray(y, dtype=np.float64),
-        layout["view"], layout["inplane"], layout["scale"], np.nan if fixed is None else fixed,
-        float(layout["view_shape"]), float(tolerance), _MAX_EVALUATIONS)
+    try:
+        p, _ = _least_squares_kernel(
+            p0, lo, hi, np.ascontiguousarray(X["dir"], dtype=np.float64),
+            np.ascontiguousarray(X["inplane"], dtype=np.float64),
+            np.ascontiguousarray(X["logs"], dtype=np.float64),
+            np.ascontiguousarray(y, dtype=np.float64), layout["view"], layout["inplane"],
+            layout["scale"], np.nan if fixed is None else fixed, float(layout["view_shape"]),
+            float(tolerance), _MAX_EVALUATIONS)
+    except np.linalg.LinAlgError:  # a damped system singular: a non-finite Jacobian
+        return None
     return p if np.all(np.isfinite(p)) else None
 
 
