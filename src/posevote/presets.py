@@ -64,7 +64,7 @@ PRESETS: dict[str, Preset] = {p.name: p for p in (
         chosen_on="COIL-100, the 16 objects of the paper: views at 0, 40, ..., 320 deg "
                   "trained, the training views between them tested",
         script="benchmarks/tune_coil_cv.py",
-        measured="COIL instance protocol 1.82 / 3.24 deg median / mean "
+        measured="COIL instance protocol 1.82 / 3.25 deg median / mean "
                  "(docs/results/coil_instance.md); min_score by 5-fold cross-validation "
                  "over the 40 development objects: 91% of right-object views kept, 86% of "
                  "other objects' views and background crops rejected "
@@ -79,7 +79,7 @@ PRESETS: dict[str, Preset] = {p.name: p for p in (
         chosen_on="COIL-100 training views pasted on clutter (self-test and cross-validation "
                   "on the training views)",
         script="benchmarks/coil_instance.py --selftest --clutter / --cv --clutter",
-        measured="COIL instance protocol in clutter 4.28 / 13.19 deg, 68.8% of positions "
+        measured="COIL instance protocol in clutter 4.30 / 13.23 deg, 68.9% of positions "
                  "within 5 px (docs/results/coil_instance_clutter.md)",
         params={"search": SearchOptions(inplane_range_deg=(-30.0, 30.0), inplane_step_deg=5.0,
                                         scale_range=(0.7, 1.3), scale_steps=7,
@@ -92,7 +92,7 @@ PRESETS: dict[str, Preset] = {p.name: p for p in (
                     "features morphed between neighbouring views (EPFL single car)",
         chosen_on="EPFL cars 2-10, the epfl-single protocol on each (car 1 only reports)",
         script="benchmarks/tune_epfl.py --protocol epfl-single",
-        measured="epfl-single (car 1, 40 training frames) 0.57 / 0.89 deg "
+        measured="epfl-single (car 1, 40 training frames) 0.58 / 0.90 deg "
                  "(docs/results/epfl-single)",
         params={"edges": EdgeOptions(max_train_features=150),
                 "search": SearchOptions(viewpoint_subdivisions=2, scale_steps=5,
@@ -105,8 +105,8 @@ PRESETS: dict[str, Preset] = {p.name: p for p in (
         chosen_on="EPFL cars 1-10, the two-fold epfl-cv (cars 1-5 <-> 6-10); the search "
                   "re-checked on the five-fold epfl-cv (8 training cars per fold)",
         script="benchmarks/tune_epfl.py",
-        measured="five-fold epfl-cv every 4th frame 3.98 / 22.8 deg, 86.9% under 45 deg, "
-                 "8.4% flips, 97.0% found (docs/results/epfl-cv)",
+        measured="five-fold epfl-cv every 4th frame 4.15 / 21.1 deg, 88.6% under 45 deg, "
+                 "7.7% flips, 97.0% found (docs/results/epfl-cv)",
         params={"edges": EdgeOptions(max_train_features=150),
                 "kernel": KernelOptions(position_sigma=6.0, viewpoint_bandwidth_deg=5.0),
                 "search": _EPFL_SEARCH,
