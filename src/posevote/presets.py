@@ -105,8 +105,8 @@ PRESETS: dict[str, Preset] = {p.name: p for p in (
         chosen_on="EPFL cars 1-10, the two-fold epfl-cv (cars 1-5 <-> 6-10); the search "
                   "re-checked on the five-fold epfl-cv (8 training cars per fold)",
         script="benchmarks/tune_epfl.py",
-        measured="five-fold epfl-cv every 4th frame 4.15 / 21.1 deg, 88.6% under 45 deg, "
-                 "7.7% flips, 97.0% found (docs/results/epfl-cv)",
+        measured="five-fold epfl-cv every 4th frame 4.00 / 23.1 deg, 86.9% under 45 deg, "
+                 "8.8% flips, 97.0% found (docs/results/epfl-cv)",
         params={"edges": EdgeOptions(max_train_features=150),
                 "kernel": KernelOptions(position_sigma=6.0, viewpoint_bandwidth_deg=5.0),
                 "search": _EPFL_SEARCH,
