@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import numpy as np
-import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
@@ -119,25 +118,3 @@ def test_collector_learns_descriptors_classifier_and_regression(placed):
     assert model.descriptors.shape == (len(az), descriptor_length(model.window))
     assert model.objectness is not None and model.objectness.shape == (model.descriptors.shape[1] + 1,)
     assert model.regressor is not None and model.regressor.shape[1:] == (4, model.descriptors.shape[1] + 1)
-
-
-@pytest.mark.parametrize("dtype", [np.float32, np.float64])
-@pytest.mark.parametrize("bins", [1, 4, 8])
-def test_box_regression_matches_scikit_learn(dtype, bins):
-    from posevote.model.appearance import train_box_regression_reference
-
-    rng = np.random.default_rng(3)
-    n, dim = 400, 30
-    az = rng.uniform(0.0, 2 * np.pi, n)
-    # Some on the ranges' edges, where a sample belongs to three ranges.
-    az[:20] = (rng.integers(0, bins, 20) - 0.5) * 2 * np.pi / bins
-    x = rng.normal(size=(n, dim)).astype(dtype)
-    y = x[:, :4] @ rng.normal(size=(4, 4)) + 0.3 + rng.normal(0.0, 0.1, (n, 4))
-    fast = train_box_regression(x, y, az, bins=bins, alpha=5.0)
-    ref = train_box_regression_reference(x, y, az, bins=bins, alpha=5.0)
-    tol = 1e-4 if dtype == np.float32 else 1e-10
-    np.testing.assert_allclose(fast, ref, atol=tol)
-    # A range with too few samples takes them all.
-    few = train_box_regression(x[:10], y[:10], az[:10], bins=bins, alpha=5.0)
-    if bins > 1:
-        np.testing.assert_allclose(few[0], few[-1], atol=tol)

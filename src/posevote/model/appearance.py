@@ -190,27 +190,10 @@ def shift_box(box: Sequence[float], offsets: NDArray[np.float64]
     return cx - nw / 2.0, cy - nh / 2.0, nw, nh
 
 
-def _range_members(azimuths: NDArray[np.float64], bins: int) -> NDArray[np.bool_]:
-    """Which azimuth ranges each sample belongs to: those within one range width of its centre."""
-    width = 2.0 * np.pi / bins
-    centres = (np.arange(bins) + 0.5) * width
-    offset = np.angle(np.exp(1j * (np.asarray(azimuths)[:, None] - centres[None, :])))
-    return np.abs(offset) <= width + 1e-9
-
-
 def train_box_regression(descriptors: NDArray[np.float32], offsets: NDArray[np.float64],
                          azimuths: NDArray[np.float64], *, bins: int = REGRESSION_BINS,
                          alpha: float = REGRESSION_ALPHA) -> NDArray[np.float64]:
     """Ridge regressions from a box's descriptor to the offsets back to the object's box.
-
-    Range ``k`` is centred on ``(k + 0.5)`` range widths and takes the
-    samples within one width of its centre, so that each sample is in two
-    ranges (three on an edge). The samples in the same ranges have their
-    sums and Gram matrix formed once, shared by those ranges (half the work
-    of a Gram per range); the ridge (centred, the intercept not penalised,
-    as :class:`sklearn.linear_model.Ridge`) is then solved by Cholesky, in
-    the descriptors' precision. :func:`train_box_regression_reference`
-    fits scikit-learn's per range.
 
     Parameters
     ----------
@@ -226,66 +209,27 @@ def train_box_regression(descriptors: NDArray[np.float32], offsets: NDArray[np.f
         within one range width of its centre (all of them when fewer than
         20 are there).
     alpha : float, optional
-        Ridge penalty.
+        Ridge penalty (:class:`sklearn.linear_model.Ridge`).
 
     Returns
     -------
     ndarray, shape (bins, 4, D + 1)
         Per range, weights and intercept of each offset.
     """
-    from scipy.linalg import cho_factor, cho_solve
-
-    x = np.asarray(descriptors)
-    dtype = np.float32 if x.dtype == np.float32 else np.float64
-    y = np.asarray(offsets).astype(dtype)
-    # Centred on the mean of all samples, so that each range's own centring
-    # subtracts little (single-precision sums).
-    centre_x = x.mean(axis=0, dtype=np.float64)
-    x = (x - centre_x.astype(dtype)).astype(dtype, copy=False)
-    member = _range_members(azimuths, bins)
-    # Samples in the same ranges (two, or three on an edge) form a group:
-    # each group's counts, sums, Gram and cross products are formed once.
-    patterns, group = np.unique(member, axis=0, return_inverse=True)
-    group = group.ravel()
-    stats = []
-    for g in range(len(patterns)):
-        xg, yg = x[group == g], y[group == g]
-        stats.append((len(xg), xg.sum(axis=0, dtype=np.float64), yg.sum(axis=0, dtype=np.float64),
-                      xg.T @ xg, xg.T @ yg))
-    out = np.zeros((bins, 4, x.shape[1] + 1))
-    for k in range(bins):
-        parts = [stats[g] for g in np.flatnonzero(patterns[:, k])]
-        n = sum(p[0] for p in parts)
-        if n < _MIN_BIN_SAMPLES:
-            parts, n = stats, len(x)
-        mean_x = sum(p[1] for p in parts) / n
-        mean_y = sum(p[2] for p in parts) / n
-        gram = sum(p[3] for p in parts) - (n * np.outer(mean_x, mean_x)).astype(dtype)
-        gram[np.diag_indices_from(gram)] += alpha
-        cross = sum(p[4] for p in parts) - (n * np.outer(mean_x, mean_y)).astype(dtype)
-        coef = cho_solve(cho_factor(gram, overwrite_a=True), cross)
-        out[k, :, :-1] = coef.T
-        out[k, :, -1] = mean_y - (mean_x + centre_x) @ coef
-    return out
-
-
-def train_box_regression_reference(descriptors: NDArray[np.float32],
-                                   offsets: NDArray[np.float64], azimuths: NDArray[np.float64],
-                                   *, bins: int = REGRESSION_BINS,
-                                   alpha: float = REGRESSION_ALPHA) -> NDArray[np.float64]:
-    """:func:`train_box_regression` by scikit-learn's ridge, one per range (for tests)."""
     from sklearn.linear_model import Ridge
 
-    member = _range_members(azimuths, bins)
+    width = 2.0 * np.pi / bins
     out = np.zeros((bins, 4, descriptors.shape[1] + 1))
     for k in range(bins):
-        near = member[:, k]
+        near = np.abs(np.angle(np.exp(1j * (azimuths - (k + 0.5) * width)))) <= width + 1e-9
         if near.sum() < _MIN_BIN_SAMPLES:
             near = np.ones(len(azimuths), dtype=bool)
         reg = Ridge(alpha=alpha).fit(descriptors[near], offsets[near])
         out[k, :, :-1] = reg.coef_
         out[k, :, -1] = reg.intercept_
     return out
+
+
 
 
 class AppearanceCollector:
