@@ -47,7 +47,7 @@ ALIGN_FEATURES = 300
 #: ALIGN_FEATURES features, before the alignment) is highest, are aligned
 #: and judged; the others explain nothing. On epfl-cv (8 training cars a
 #: fold) 3, 4 or 5 chose as well as all 8, for 40% less of the
-#: recognition's time; on the COIL category cross-validation (4 instances
+#: recognition's time (docs/DEFAULTS.md); on the COIL category cross-validation (4 instances
 #: a category) 3 cost 6 degrees of the summed mean errors.
 RECOGNITION_SHORTLIST = 4
 
