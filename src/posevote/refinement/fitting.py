@@ -58,6 +58,7 @@ FIT_RADIUS_STEPS = 2.5
 #: Most evaluations of the fitted distribution in one fit.
 _MAX_EVALUATIONS = 100
 
+#: A step past a bound goes this share of the way to it (the kernel's docstring).
 _TO_BOUND = 0.99
 
 
@@ -232,7 +233,7 @@ def _least_squares_kernel(p0, lo, hi, dirs, inplane, logs, y, has_view, has_inpl
 
     The damping is scaled by the Jacobian's column norms (scipy's
     ``x_scale="jac"``); a parameter on a bound that the gradient pushes
-    outward is held there; a step past a bound goes halfway to it (an
+    outward is held there; a step past a bound stops just short of it (an
     amplitude clipped to 0 would flatten the model and stop the fit on a
     zero gradient). Stops as scipy's
     ``least_squares`` does: the cost falls by less than ``tol`` of itself
