@@ -12,12 +12,14 @@ from posevote.inference.maps import (
     blurred_points,
     map_grid,
     merge_voters,
+    orientation_planes,
     prepare_test,
     restrict_maps,
     saturate_reference,
     smooth,
 )
 from posevote.inference.voting import accumulate_votes, blur_taps, density_at
+from posevote.model.kernels import orientation_kernel
 
 
 def test_chance_width_subtracts_the_local_chance_level():
@@ -183,3 +185,21 @@ def test_a_wide_kernel_on_a_tiny_image_keeps_its_grid_readable(shape):
     away = restrict_maps(maps, np.array([50.0, 50.0]), np.array([60.0, 60.0]))
     assert away.chance == 0.0
     assert not density_at(away, xy, np.full(len(xy), 0.5)).any()
+
+
+@pytest.mark.parametrize(("sigma", "shape"), [(3.0, (60, 70)), (7.0, (90, 110)), (11.0, (130, 97))])
+def test_orientation_planes_agree_with_blurred_strengths(sigma, shape):
+    # The compiled pass against the numpy reference: the strengths computed
+    # by orientation_kernel, then blurred_points (narrow kernels at the
+    # pixels, wide ones on the coarse grid); points on the border included.
+    rng = np.random.default_rng(5)
+    xy = np.vstack([rng.uniform(0, 1, (700, 2)) * (shape[1] - 1, shape[0] - 1),
+                    [[0.0, 0.0], [shape[1] - 1.0, shape[0] - 1.0]]])
+    theta = rng.uniform(0, np.pi, len(xy))
+    weight = rng.uniform(0.5, 2.0, len(xy))
+    centres = (np.arange(16) + 0.5) * np.pi / 16
+    planes = orientation_planes(xy, theta, weight, centres, 3.0, shape, sigma)
+    strength = weight[None, :] * orientation_kernel(theta[None, :] - centres[:, None], 3.0)
+    reference = blurred_points(xy, strength, shape, sigma)
+    assert planes.shape == reference.shape == (16, *map_grid(sigma, shape)[1:])
+    np.testing.assert_allclose(planes, reference, rtol=1e-5, atol=1e-7 * reference.max())

@@ -75,3 +75,18 @@ def test_features_of_views_as_a_mask_would_select(toy_model):
                        view=toy_model.view[order], weight=toy_model.weight[order])
     np.testing.assert_array_equal(shuffled.features_of(views),
                                   np.flatnonzero(np.isin(shuffled.view, views)))
+
+
+def test_cached_radius_and_viewpoints_are_what_they_summarise(toy_model):
+    from dataclasses import replace
+
+    toy_model = toy_model()
+    assert toy_model.rms_radius == pytest.approx(np.sqrt(np.mean(np.sum(toy_model.xy**2, 1))))
+    # Repeated views collapse to one viewpoint each, sorted; read-only.
+    twice = replace(toy_model, view_azimuth=np.repeat(toy_model.view_azimuth[:2], 2)[
+        :toy_model.n_views] if toy_model.n_views >= 4 else toy_model.view_azimuth)
+    pairs = twice.viewpoints
+    assert len(pairs) == len(np.unique(np.round(twice.view_azimuth, 9)))
+    assert np.all(np.diff(pairs[:, 0]) >= 0)
+    with pytest.raises(ValueError):
+        pairs[0, 0] = 1.0

@@ -149,9 +149,8 @@ def prepare_test(features: EdgeFeatures, shape: tuple[int, int], *, position_sig
     # and an isolated edge sampled every `edge_spacing` pixels then sums to
     # sqrt(2 pi) sigma / spacing, which is brought to 1.
     gain = np.sqrt(2.0 * np.pi) * position_sigma * edge_spacing
-    strength = weight[None, :] * orientation_kernel(features.theta[None, :] - centres[:, None],
-                                                    orientation_kappa)
-    density = blurred_points(features.xy, strength, shape, position_sigma)
+    density = orientation_planes(features.xy, features.theta, weight, centres, orientation_kappa,
+                                 shape, position_sigma)
     mean = np.empty(density.shape[1:], dtype=np.float32)
     # On the grid: the cap and the chance level apply to its cells, which the
     # readers interpolate (a cap between cells is the interpolated caps).
@@ -328,36 +327,104 @@ def blurred_points(xy: NDArray[np.float64], values: NDArray[np.float64], shape: 
     ndarray, shape (GH, GW) or (B, GH, GW), float32
         The blurred points at the grid's cells (the density per pixel).
     """
-    h, w = shape
     rows_of = np.atleast_2d(values)
     k, gh, gw = map_grid(sigma, shape)
+    index, fx, fy = _places(xy, k, shape, gh, gw)
     out = np.empty((len(rows_of), gh, gw), dtype=np.float32)
     if k == 1:
-        cols = np.clip(np.rint(xy[:, 0]).astype(np.int64), 0, w - 1)
-        rows = np.clip(np.rint(xy[:, 1]).astype(np.int64), 0, h - 1)
         for b, row in enumerate(rows_of):
-            plane = np.bincount(rows * w + cols, weights=row, minlength=h * w)
-            out[b] = cv2.GaussianBlur(plane.astype(np.float32).reshape(h, w), (0, 0), sigma,
+            plane = np.bincount(index, weights=row, minlength=gh * gw)
+            out[b] = cv2.GaussianBlur(plane.astype(np.float32).reshape(gh, gw), (0, 0), sigma,
                                       borderType=cv2.BORDER_CONSTANT)
         return out if np.ndim(values) == 2 else out[0]
-    gx = np.clip((xy[:, 0] + 0.5) / k - 0.5, 0.0, gw - 1.0)
-    gy = np.clip((xy[:, 1] + 0.5) / k - 0.5, 0.0, gh - 1.0)
-    c0 = np.minimum(gx.astype(np.int64), gw - 2)
-    r0 = np.minimum(gy.astype(np.int64), gh - 2)
-    fx, fy = gx - c0, gy - r0
-    c1, r1 = c0 + 1, r0 + 1
-    index = np.concatenate([r0 * gw + c0, r0 * gw + c1, r1 * gw + c0, r1 * gw + c1])
+    corners = np.concatenate([index, index + 1, index + gw, index + gw + 1])
     ax, ay = 1 - fx, 1 - fy
-    # The splat spreads a point by k^2 / 6 (px^2) on average: blurred that much less.
-    width = np.sqrt(sigma**2 - k * k / 6.0) / k
+    width = _splat_width(sigma, k)
     for b, row in enumerate(rows_of):
         # Each block holds k^2 pixels' mass: its blurred value is k^2 the pixels'.
         v = row / (k * k)
         mass = np.concatenate([v * ax * ay, v * fx * ay, v * ax * fy, v * fx * fy])
-        splat = np.bincount(index, weights=mass, minlength=gh * gw).astype(np.float32)
+        splat = np.bincount(corners, weights=mass, minlength=gh * gw).astype(np.float32)
         out[b] = cv2.GaussianBlur(splat.reshape(gh, gw), (0, 0), width,
                                   borderType=cv2.BORDER_CONSTANT)
     return out if np.ndim(values) == 2 else out[0]
+
+
+def _places(xy: NDArray[np.float64], k: int, shape: tuple[int, int], gh: int, gw: int
+            ) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64]]:
+    """Where :func:`blurred_points` splats each point: the flat index of its first cell and
+    its bilinear fractions (0 when ``k`` is 1: the pixel it rounds to)."""
+    h, w = shape
+    if k == 1:
+        cols = np.clip(np.rint(xy[:, 0]).astype(np.int64), 0, w - 1)
+        rows = np.clip(np.rint(xy[:, 1]).astype(np.int64), 0, h - 1)
+        zero = np.zeros(len(xy))
+        return rows * w + cols, zero, zero
+    gx = np.clip((xy[:, 0] + 0.5) / k - 0.5, 0.0, gw - 1.0)
+    gy = np.clip((xy[:, 1] + 0.5) / k - 0.5, 0.0, gh - 1.0)
+    c0 = np.minimum(gx.astype(np.int64), gw - 2)
+    r0 = np.minimum(gy.astype(np.int64), gh - 2)
+    return r0 * gw + c0, gx - c0, gy - r0
+
+
+def _splat_width(sigma: float, k: int) -> float:
+    """The blur left after a bilinear splat on ``k``-pixel cells, cells: the splat spreads a
+    point by k^2 / 6 (px^2) on average."""
+    return float(np.sqrt(sigma**2 - k * k / 6.0) / k)
+
+
+@numba.njit(cache=True, nogil=True)
+def _splat_orientations(index, fx, fy, theta, weight, centres, kappa, norm, bilinear, gw,
+                        out):  # pragma: no cover - compiled
+    """Each point's orientation strength in every plane (:func:`orientation_kernel` times its
+    weight, over ``norm``) added to ``out`` (planes x cells) at its place, bilinearly or at
+    its cell."""
+    # cos 2(theta - c) from the angles' own cosines and sines: two calls a
+    # point instead of one a plane.
+    n_planes = centres.shape[0]
+    cos_c = np.cos(2.0 * centres)
+    sin_c = np.sin(2.0 * centres)
+    for i in range(theta.shape[0]):
+        a, b, j = fx[i], fy[i], index[i]
+        cos_t = np.cos(2.0 * theta[i])
+        sin_t = np.sin(2.0 * theta[i])
+        for p in range(n_planes):
+            v = weight[i] * np.exp(kappa * (cos_t * cos_c[p] + sin_t * sin_c[p] - 1.0)) / norm
+            if bilinear:
+                out[p, j] += v * (1.0 - a) * (1.0 - b)
+                out[p, j + 1] += v * a * (1.0 - b)
+                out[p, j + gw] += v * (1.0 - a) * b
+                out[p, j + gw + 1] += v * a * b
+            else:
+                out[p, j] += v
+
+
+def orientation_planes(xy: NDArray[np.float64], theta: NDArray[np.float64],
+                       weight: NDArray[np.float64], centres: NDArray[np.float64], kappa: float,
+                       shape: tuple[int, int], sigma: float) -> NDArray[np.float32]:
+    """:func:`blurred_points` of the points' orientation strengths, one plane per centre.
+
+    Plane ``b`` holds the points of mass ``weight * orientation_kernel(theta - centres[b],
+    kappa)``; the strengths are computed and splatted in one compiled pass (the same planes
+    as :func:`blurred_points` of the strengths, to rounding).
+
+    Returns
+    -------
+    ndarray, shape (len(centres), GH, GW), float32
+    """
+    k, gh, gw = map_grid(sigma, shape)
+    index, fx, fy = _places(xy, k, shape, gh, gw)
+    splat = np.zeros((len(centres), gh * gw))
+    _splat_orientations(index, fx, fy, np.ascontiguousarray(theta, dtype=np.float64),
+                        np.ascontiguousarray(weight, dtype=np.float64),
+                        np.ascontiguousarray(centres, dtype=np.float64), float(kappa),
+                        float(k * k), k > 1, gw, splat)
+    width = sigma if k == 1 else _splat_width(sigma, k)
+    out = np.empty((len(centres), gh, gw), dtype=np.float32)
+    for b in range(len(centres)):
+        out[b] = cv2.GaussianBlur(splat[b].astype(np.float32).reshape(gh, gw), (0, 0), width,
+                                  borderType=cv2.BORDER_CONSTANT)
+    return out
 
 
 def smooth(plane: NDArray[np.float32], sigma: float, border: int) -> NDArray[np.float32]:

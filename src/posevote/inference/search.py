@@ -195,7 +195,7 @@ def search_sigma(model: PoseModel, setup: SearchSetup) -> float:
     it to clutter between grid steps.
     """
     inplanes, scales = setup.options.grid()
-    r = float(np.sqrt(np.mean(np.sum(model.xy**2, axis=1)))) * float(np.max(scales))
+    r = model.rms_radius * float(np.max(scales))
     d_alpha = float(np.median(np.diff(inplanes))) if len(inplanes) > 1 else 0.0
     d_log_s = setup.options.scale_step()
     return float(np.sqrt(setup.position_sigma**2 + (r * d_alpha / 2.0) ** 2
@@ -344,8 +344,7 @@ def viewpoint_grid(model: PoseModel, *, subdivisions: int = 1, step: float | Non
     """
     if subdivisions < 1:
         raise ValueError(f"subdivisions must be >= 1, got {subdivisions}")
-    pairs = np.unique(np.round(np.stack([model.view_azimuth, model.view_elevation], 1), 9), axis=0)
-    az, el = pairs[:, 0], pairs[:, 1]
+    az, el = model.viewpoints[:, 0].copy(), model.viewpoints[:, 1].copy()
     if step is not None and np.ptp(el) <= 1e-9:
         if not step > 0:
             raise ValueError(f"step must be positive, got {step}")

@@ -106,6 +106,24 @@ class PoseModel:
     def _view_directions(self) -> NDArray[np.float64]:
         return viewing_direction(self.view_azimuth, self.view_elevation)
 
+    @cached_property
+    def rms_radius(self) -> float:
+        """Root-mean-square distance of the features from the reference point (reference units).
+
+        Cached: a pooled category model has hundreds of thousands of features,
+        and every search of an image reads it.
+        """
+        return float(np.sqrt(np.mean(np.sum(self.xy**2, axis=1)))) if len(self.xy) else 0.0
+
+    @cached_property
+    def viewpoints(self) -> NDArray[np.float64]:
+        """The distinct training viewpoints ``(azimuth, elevation)``, radians, rounded to 1e-9
+        and sorted, shape (P, 2); cached, as every search starts from them."""
+        pairs = np.unique(np.round(np.stack([self.view_azimuth, self.view_elevation], 1), 9),
+                          axis=0)
+        pairs.flags.writeable = False
+        return pairs
+
     def features_of(self, views: NDArray[np.intp]) -> NDArray[np.intp]:
         """Indices of the features of ``views`` (sorted ascending), in increasing order."""
         starts = self._view_starts
