@@ -27,13 +27,56 @@ from posevote.inference.maps import TestMaps, vote_cell
 
 # --- kernel 1: votes ----------------------------------------------------------
 
-@numba.njit(cache=True, nogil=True, fastmath=False)
+@numba.njit(cache=True, nogil=True)
+def _lut_index(lo, n, test_theta, th, lut_scale, index):  # pragma: no cover - compiled
+    """The orientation table's entry for each pair of ``th`` with test voters ``lo`` to
+    ``lo + n``: a loop with no stores to the grid, which the compiler vectorises."""
+    for m in range(n):
+        d = abs(test_theta[lo + m] - th)
+        d = min(d, np.pi - d)
+        index[m] = np.int64(d * lut_scale + 0.5)
+
+
+@numba.njit(cache=True, nogil=True)
+def _pair_cells(lo, n, tx, ty, test_w, wo, qx, qy, wi, xmax, ymax, row, cell, w00, w01, w10,
+                w11):  # pragma: no cover - compiled
+    """Each pair's vote cell (flat) and bilinear weights, for test voters ``lo`` to
+    ``lo + n`` against one training voter at (qx, qy) of weight ``wi``; ``wo`` holds the
+    pairs' orientation weights. A pair off the grid gets cell 0 and zero weights (its
+    writes then add nothing). Vectorised by the compiler, as :func:`_lut_index`."""
+    for m in range(n):
+        j = lo + m
+        gx = tx[j] - qx
+        gy = ty[j] - qy
+        inside = (gx >= 0.0) & (gy >= 0.0) & (gx < xmax) & (gy < ymax)
+        gx = gx if inside else 0.0
+        gy = gy if inside else 0.0
+        c0 = np.uint64(gx)
+        r0 = np.uint64(gy)
+        fx = gx - np.float64(c0)
+        fy = gy - np.float64(r0)
+        v = wi * (wo[m] if inside else 0.0) * test_w[j]
+        vy = v * fy
+        v0 = v - vy
+        cell[m] = r0 * row + c0
+        w00[m] = v0 - v0 * fx
+        w01[m] = v0 * fx
+        w10[m] = vy - vy * fx
+        w11[m] = vy * fx
+
+
+@numba.njit(cache=True, nogil=True)
 def accumulate_votes(train_xy, train_theta, train_w, alpha, scale, test_xy, test_theta, test_w,
                      bin_start, lut, radius, cell, acc):  # pragma: no cover - compiled
     """Add the translation votes of one pose into ``acc`` (grid of cell ``cell`` px).
 
     ``acc[r, c]`` collects votes for ``t = (c * cell, r * cell)``, splatted
-    bilinearly. Returns nothing; ``acc`` is updated in place.
+    bilinearly. Returns nothing; ``acc`` is updated in place. The pairs of a
+    training voter are those with the test voters of the orientation bins
+    within the table's reach, one run of the sorted voters (two where the
+    bins wrap round); each run's weights and cells are computed first, in
+    vectorised loops, then written in the pairs' order (the same sums, bit
+    for bit, as a loop over the pairs).
     """
     n_bins = bin_start.shape[0] - 1
     bin_width = np.pi / n_bins
@@ -58,6 +101,13 @@ def accumulate_votes(train_xy, train_theta, train_w, alpha, scale, test_xy, test
     for j in range(n_test):
         tx[j] = test_xy[j, 0] * inv_cell
         ty[j] = test_xy[j, 1] * inv_cell
+    index = np.empty(n_test, dtype=np.int64)
+    wo = np.empty(n_test)
+    cells = np.empty(n_test, dtype=np.uint64)
+    w00 = np.empty(n_test)
+    w01 = np.empty(n_test)
+    w10 = np.empty(n_test)
+    w11 = np.empty(n_test)
     ca, sa = np.cos(alpha), np.sin(alpha)
     for i in range(train_xy.shape[0]):
         wi = train_w[i]
@@ -68,35 +118,41 @@ def accumulate_votes(train_xy, train_theta, train_w, alpha, scale, test_xy, test
         th = train_theta[i] + alpha
         th = th - np.pi * np.floor(th / np.pi)
         centre = int(th / bin_width)
-        for db in range(-radius, radius + 1):
-            if db > 0 and (centre + db) * bin_width - th > reach:
+        # The bins from centre + first to centre + stop lie within reach.
+        first = -radius
+        while first < 0 and th - (centre + first + 1) * bin_width > reach:
+            first += 1
+        stop = radius
+        while stop > 0 and (centre + stop) * bin_width - th > reach:
+            stop -= 1
+        b_first = centre + first
+        b_stop = centre + stop
+        for run in range(2):
+            if run == 0 and b_first < 0:
+                lo, hi = bin_start[b_first + n_bins], bin_start[n_bins]
+            elif run == 0:
+                lo, hi = bin_start[b_first], bin_start[min(b_stop, n_bins - 1) + 1]
+            elif b_first < 0:
+                lo, hi = bin_start[0], bin_start[b_stop + 1]
+            elif b_stop >= n_bins:
+                lo, hi = bin_start[0], bin_start[b_stop - n_bins + 1]
+            else:
+                break
+            n = hi - lo
+            if n <= 0:
                 continue
-            if db < 0 and th - (centre + db + 1) * bin_width > reach:
-                continue
-            b = (centre + db) % n_bins
-            for j in range(bin_start[b], bin_start[b + 1]):
-                d = abs(test_theta[j] - th)
-                if d > np.pi / 2.0:
-                    d = np.pi - d
-                # A pair past the table's support adds zeros: cheaper than a
-                # branch that cannot be predicted.
-                wo = lut[np.uint64(d * lut_scale + 0.5)]
-                gx = tx[j] - qx
-                gy = ty[j] - qy
-                if not (gx >= 0.0 and gy >= 0.0 and gx < xmax and gy < ymax):
-                    continue
-                c0 = np.uint64(gx)
-                r0 = np.uint64(gy)
-                fx = gx - np.float64(c0)
-                fy = gy - np.float64(r0)
-                v = wi * wo * test_w[j]
-                vy = v * fy
-                v0 = v - vy
-                k = r0 * row + c0
-                flat[k] += v0 - v0 * fx
-                flat[k + np.uint64(1)] += v0 * fx
-                flat[k + row] += vy - vy * fx
-                flat[k + row + np.uint64(1)] += vy * fx
+            _lut_index(lo, n, test_theta, th, lut_scale, index)
+            # The table's gather apart: in the loops above it stops their vectorising.
+            for m in range(n):
+                wo[m] = lut[index[m]]
+            _pair_cells(lo, n, tx, ty, test_w, wo, qx, qy, wi, xmax, ymax, row, cells, w00,
+                        w01, w10, w11)
+            for m in range(n):
+                k = cells[m]
+                flat[k] += w00[m]
+                flat[k + np.uint64(1)] += w01[m]
+                flat[k + row] += w10[m]
+                flat[k + row + np.uint64(1)] += w11[m]
 
 
 def accumulate_votes_reference(train_xy, train_theta, train_w, alpha, scale, test_xy, test_theta,
@@ -161,8 +217,12 @@ def gather_score(density, frame, train_xy, train_theta, train_w, alpha, scale, t
         f = th / bin_width - 0.5
         fb = np.floor(f)
         ft = f - fb
-        b0 = int(fb) % n_bins
-        b1 = (b0 + 1) % n_bins
+        # fb lies in [-1, n_bins - 1]: wrapped by a comparison, not an integer division
+        # (a fifth of the search's exact scores).
+        b0 = int(fb)
+        if b0 < 0:
+            b0 += n_bins
+        b1 = b0 + 1 if b0 + 1 < n_bins else 0
         total += wi * phi_at(density, x, y, b0, b1, ft)
     return total
 
@@ -293,8 +353,11 @@ def place_features(frame, n_bins, xy, theta, alpha, scale, u0, v0, px, py, obins
         f = th / bin_width - 0.5
         fb = np.floor(f)
         ofrac[i] = f - fb
-        obins[i, 0] = int(fb) % n_bins
-        obins[i, 1] = (obins[i, 0] + 1) % n_bins
+        b0 = int(fb)
+        if b0 < 0:
+            b0 += n_bins
+        obins[i, 0] = b0
+        obins[i, 1] = b0 + 1 if b0 + 1 < n_bins else 0
 
 
 @numba.njit(cache=True, nogil=True)
