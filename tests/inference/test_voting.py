@@ -39,13 +39,20 @@ def scene():
     return train_xy, train_theta, train_w, alpha, scale, t, maps
 
 
-def test_votes_kernel_matches_reference(scene):
+@pytest.mark.parametrize("table", ["maps", "never zero"])
+def test_votes_kernel_matches_reference(scene, table):
+    # The maps' table (the runs of orientations within reach, wrapping round
+    # 0 and pi for the training voters near them) and one that never falls
+    # to 0 (every pair, once).
     train_xy, train_theta, train_w, alpha, scale, _, maps = scene
+    lut = maps.lut if table == "maps" else 0.1 + maps.lut
+    assert np.any(np.mod(train_theta + alpha, np.pi) < 0.1)
+    assert np.any(np.mod(train_theta + alpha, np.pi) > np.pi - 0.1)
     acc = np.zeros((40, 50))
     accumulate_votes(train_xy, train_theta, train_w, alpha, scale, maps.vote_xy, maps.vote_theta,
-                     maps.vote_weight, maps.bin_start, maps.lut, maps.vote_radius, 2.5, acc)
+                     maps.vote_weight, lut, 2.5, acc)
     ref = accumulate_votes_reference(train_xy, train_theta, train_w, alpha, scale, maps.vote_xy,
-                                     maps.vote_theta, maps.vote_weight, maps.lut, 2.5, (40, 50))
+                                     maps.vote_theta, maps.vote_weight, lut, 2.5, (40, 50))
     assert acc.sum() > 0
     assert np.allclose(acc, ref, atol=1e-12)
 

@@ -20,7 +20,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from posevote.features.edges import EdgeFeatures
-from posevote.model.kernels import orientation_cutoff, orientation_kernel
+from posevote.model.kernels import orientation_kernel
 
 _LUT_SIZE = 1024  # orientation-kernel table over [0, pi/2]
 
@@ -39,12 +39,10 @@ class TestMaps:
     xy, theta : ndarray
         The test features.
     vote_xy, vote_theta, vote_weight : ndarray
-        The voters, sorted by orientation bin: the test features of one
+        The voters, sorted by orientation: the test features of one
         orientation bin in one vote cell merged into one, at their mean
         position and orientation, weighted by their number (the votes'
         density is that of the features, at a fraction of the pairs).
-    bin_start : ndarray of int, shape (n_vote_bins + 1,)
-        Start of each orientation bin in the voters.
     density : ndarray, shape (n_density_bins, GH, GW), float32
         Test density phi (Eq. 2, peak-1 kernels) for ``n_density_bins``
         evenly spaced orientations, on a grid of ``grid x grid`` pixel cells
@@ -59,9 +57,9 @@ class TestMaps:
         ``(u_lo, v_lo, u_hi, v_hi)``, pixels: phi is read where
         ``u_lo <= u < u_hi`` and ``v_lo <= v < v_hi``, and is 0 elsewhere.
     lut : ndarray
-        Orientation kernel tabulated over ``[0, pi/2]``.
-    vote_radius : int
-        Orientation bins searched on each side when pairing features.
+        Orientation kernel tabulated over ``[0, pi/2]``, 0 below the vote cutoff: a
+        training voter pairs with the test voters in the run of orientations where
+        it is not.
     position_sigma : float
         Position kernel width of ``density``, pixels.
     chance : float
@@ -75,13 +73,11 @@ class TestMaps:
     vote_xy: NDArray[np.float64]
     vote_theta: NDArray[np.float64]
     vote_weight: NDArray[np.float64]
-    bin_start: NDArray[np.int64]
     density: NDArray[np.float32]
     grid: int
     shape: tuple[int, int]
     window: tuple[float, float, float, float]
     lut: NDArray[np.float64]
-    vote_radius: int
     position_sigma: float
     chance: float = 0.0
 
@@ -125,7 +121,8 @@ def prepare_test(features: EdgeFeatures, shape: tuple[int, int], *, position_sig
         own texture, no longer scores its chance matches (beyond the paper;
         phi may then be negative).
     vote_bins : int, optional
-        Orientation bins used to find compatible pairs when voting.
+        Orientation bins: the test features of one bin and one square merge into
+        one voter.
     density_bins : int, optional
         Orientations at which phi is tabulated (linear interpolation between).
     vote_cutoff : float, optional
@@ -163,16 +160,14 @@ def prepare_test(features: EdgeFeatures, shape: tuple[int, int], *, position_sig
         _subtract_plane(density, local)
         plane_sum -= local.astype(np.float64) * density_bins
     lut = orientation_kernel(np.linspace(0.0, np.pi / 2, _LUT_SIZE), orientation_kappa)
-    cut = orientation_cutoff(orientation_kappa, vote_cutoff)
-    radius = int(np.ceil(cut / (np.pi / vote_bins)))
-    vote_xy, vote_theta, vote_weight, bin_start = merge_voters(
+    vote_xy, vote_theta, vote_weight = merge_voters(
         features, weight, vote_bins, VOTER_CELLS * vote_cell(position_sigma))
     window = (0.0, 0.0, float(w - 1), float(h - 1))
     return TestMaps(xy=features.xy.copy(), theta=features.theta.copy(), vote_xy=vote_xy,
-                    vote_theta=vote_theta, vote_weight=vote_weight, bin_start=bin_start,
+                    vote_theta=vote_theta, vote_weight=vote_weight,
                     density=density, grid=k, shape=(h, w), window=window,
                     lut=np.where(lut >= vote_cutoff, lut, 0.0),
-                    vote_radius=min(radius, vote_bins // 2), position_sigma=float(position_sigma),
+                    position_sigma=float(position_sigma),
                     chance=window_mean(plane_sum, k, shape, window) / density_bins)
 
 
@@ -472,8 +467,7 @@ def vote_cell(position_sigma: float) -> float:
 
 
 def merge_voters(features: EdgeFeatures, weight: NDArray[np.float64], n_bins: int, cell: float
-                 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64],
-                            NDArray[np.int64]]:
+                 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """The features of each orientation bin and ``cell``-sized square merged into one voter.
 
     A voter stands at its features' weighted mean position and orientation,
@@ -483,25 +477,25 @@ def merge_voters(features: EdgeFeatures, weight: NDArray[np.float64], n_bins: in
     Returns
     -------
     xy, theta, weight : ndarray
-        The voters, sorted by bin.
-    bin_start : ndarray of int, shape (n_bins + 1,)
-        Start of each bin in them.
+        The voters, sorted by orientation (a voter's mean orientation stays in its bin).
     """
     if len(features) == 0:
-        return (np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.zeros(n_bins + 1, dtype=np.int64))
+        return np.zeros((0, 2)), np.zeros(0), np.zeros(0)
     bins = np.minimum((features.theta / np.pi * n_bins).astype(np.int64), n_bins - 1)
     cells = np.floor(features.xy / cell).astype(np.int64)
     cells -= cells.min(axis=0)
     nx, ny = int(cells[:, 0].max()) + 1, int(cells[:, 1].max()) + 1
     key = (bins * ny + cells[:, 1]) * nx + cells[:, 0]
-    unique, group = np.unique(key, return_inverse=True)
+    _, group = np.unique(key, return_inverse=True)
     total = np.bincount(group, weights=weight).astype(np.float64)
     safe = np.where(total > 0, total, 1.0)
     xy = np.stack([np.bincount(group, weights=weight * features.xy[:, k]) / safe
                    for k in range(2)], axis=1)
     theta = np.bincount(group, weights=weight * features.theta) / safe
-    bin_start = np.searchsorted(unique // (nx * ny), np.arange(n_bins + 1)).astype(np.int64)
-    return xy, theta, total, bin_start
+    # By orientation: a training voter's pairs are then one run of them, the
+    # orientations within the table's reach of its own.
+    order = np.argsort(theta, kind="stable")
+    return xy[order], theta[order], total[order]
 
 
 def restrict_maps(maps: TestMaps, lo: NDArray[np.float64], hi: NDArray[np.float64]
@@ -527,10 +521,6 @@ def restrict_maps(maps: TestMaps, lo: NDArray[np.float64], hi: NDArray[np.float6
     """
     inside = np.all((maps.xy >= lo) & (maps.xy <= hi), axis=1)
     voting = np.all((maps.vote_xy >= lo) & (maps.vote_xy <= hi), axis=1)
-    n_bins = len(maps.bin_start) - 1
-    bins = np.repeat(np.arange(n_bins), np.diff(maps.bin_start))
-    counts = np.bincount(bins[voting], minlength=n_bins)
-    bin_start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
     u_lo, v_lo, u_hi, v_hi = maps.window
     window = (max(float(np.floor(lo[0])), u_lo), max(float(np.floor(lo[1])), v_lo),
               min(float(np.ceil(hi[0])), u_hi), min(float(np.ceil(hi[1])), v_hi))
@@ -544,7 +534,7 @@ def restrict_maps(maps: TestMaps, lo: NDArray[np.float64], hi: NDArray[np.float6
         plane_sum[r0:r1, c0:c1] = maps.density[:, r0:r1, c0:c1].sum(axis=0, dtype=np.float64)
     return replace(maps, xy=maps.xy[inside], theta=maps.theta[inside],
                    vote_xy=maps.vote_xy[voting], vote_theta=maps.vote_theta[voting],
-                   vote_weight=maps.vote_weight[voting], bin_start=bin_start, window=window,
+                   vote_weight=maps.vote_weight[voting], window=window,
                    chance=window_mean(plane_sum, k, maps.shape, window) / n_planes)
 
 

@@ -67,26 +67,26 @@ def _pair_cells(lo, n, tx, ty, test_w, wo, qx, qy, wi, xmax, ymax, row, cell, w0
 
 @numba.njit(cache=True, nogil=True)
 def accumulate_votes(train_xy, train_theta, train_w, alpha, scale, test_xy, test_theta, test_w,
-                     bin_start, lut, radius, cell, acc):  # pragma: no cover - compiled
+                     lut, cell, acc):  # pragma: no cover - compiled
     """Add the translation votes of one pose into ``acc`` (grid of cell ``cell`` px).
 
     ``acc[r, c]`` collects votes for ``t = (c * cell, r * cell)``, splatted
-    bilinearly. Returns nothing; ``acc`` is updated in place. The pairs of a
-    training voter are those with the test voters of the orientation bins
-    within the table's reach, one run of the sorted voters (two where the
-    bins wrap round); each run's weights and cells are computed first, in
-    vectorised loops, then written in the pairs' order (the same sums, bit
-    for bit, as a loop over the pairs).
+    bilinearly. Returns nothing; ``acc`` is updated in place. The test
+    voters are sorted by orientation (in ``[0, pi)``), and a training
+    voter's pairs are the run of them within the table's reach of its
+    orientation (two runs where it wraps round): the pairs of zero weight
+    are not visited. Each run's weights and cells are computed first, in
+    vectorised loops, then written in the pairs' order.
     """
-    n_bins = bin_start.shape[0] - 1
-    bin_width = np.pi / n_bins
     lut_scale = (lut.shape[0] - 1) / (np.pi / 2.0)
-    # The orientation difference past which the table is 0: a bin wholly
-    # beyond it holds no pair with a vote.
+    # The orientation difference past which the table is 0: the test voters
+    # beyond it hold no pair with a vote.
     last = lut.shape[0] - 1
     while last >= 0 and lut[last] <= 0.0:
         last -= 1
     reach = (last + 0.5) / lut_scale + 1e-9
+    # A table that never falls to 0 pairs every voter with every other, once.
+    whole = reach >= np.pi / 2.0
     gh, gw = acc.shape
     # One flat index per pair, unsigned: no negative-index wrap checks on the
     # four writes (an eighth of the votes' time, the same sums).
@@ -117,25 +117,20 @@ def accumulate_votes(train_xy, train_theta, train_w, alpha, scale, test_xy, test
         qy = scale * (sa * train_xy[i, 0] + ca * train_xy[i, 1]) * inv_cell
         th = train_theta[i] + alpha
         th = th - np.pi * np.floor(th / np.pi)
-        centre = int(th / bin_width)
-        # The bins from centre + first to centre + stop lie within reach.
-        first = -radius
-        while first < 0 and th - (centre + first + 1) * bin_width > reach:
-            first += 1
-        stop = radius
-        while stop > 0 and (centre + stop) * bin_width - th > reach:
-            stop -= 1
-        b_first = centre + first
-        b_stop = centre + stop
+        a_lo = th - reach
+        a_hi = th + reach
         for run in range(2):
-            if run == 0 and b_first < 0:
-                lo, hi = bin_start[b_first + n_bins], bin_start[n_bins]
+            if run == 0 and whole:
+                lo, hi = 0, n_test
             elif run == 0:
-                lo, hi = bin_start[b_first], bin_start[min(b_stop, n_bins - 1) + 1]
-            elif b_first < 0:
-                lo, hi = bin_start[0], bin_start[b_stop + 1]
-            elif b_stop >= n_bins:
-                lo, hi = bin_start[0], bin_start[b_stop - n_bins + 1]
+                lo = np.searchsorted(test_theta, max(a_lo, 0.0))
+                hi = np.searchsorted(test_theta, min(a_hi, np.pi))
+            elif whole:
+                break
+            elif a_lo < 0.0:
+                lo, hi = np.searchsorted(test_theta, a_lo + np.pi), n_test
+            elif a_hi > np.pi:
+                lo, hi = 0, np.searchsorted(test_theta, a_hi - np.pi)
             else:
                 break
             n = hi - lo
@@ -159,9 +154,8 @@ def accumulate_votes_reference(train_xy, train_theta, train_w, alpha, scale, tes
                                test_w, lut, cell, shape):
     """Pure-numpy :func:`accumulate_votes` over all pairs (for tests).
 
-    Unlike the kernel it does not skip pairs by orientation bin; pairs outside
-    the kernel's bin radius get a zero table value whenever the bin radius
-    covers the table's support, as :func:`prepare_test` ensures.
+    Unlike the kernel it visits every pair; those the kernel skips, past the
+    table's support, have a zero table value.
     """
     ca, sa = np.cos(alpha), np.sin(alpha)
     q = scale * np.stack([ca * train_xy[:, 0] - sa * train_xy[:, 1],
@@ -467,7 +461,7 @@ def _polish(density, frame, train_xy, train_theta, train_w, alpha, scale, u0, v0
 
 @numba.njit(cache=True, nogil=True)
 def _search_kernel(train_xy, train_theta, train_w, alphas, scales, test_xy, test_theta, test_w,
-                   bin_start, lut, radius, density, frame, h, w, cell, taps, n_candidates, voters,
+                   lut, density, frame, h, w, cell, taps, n_candidates, voters,
                    polish, out_score, out_t):  # pragma: no cover - compiled
     gh = int(np.ceil(h / cell)) + 1
     gw = int(np.ceil(w / cell)) + 1
@@ -487,7 +481,7 @@ def _search_kernel(train_xy, train_theta, train_w, alphas, scales, test_xy, test
         for s in range(scales.shape[0]):
             acc[:, :] = 0.0
             accumulate_votes(voter_xy, voter_theta, voter_w, alphas[a], scales[s], test_xy,
-                             test_theta, test_w, bin_start, lut, radius, cell, acc)
+                             test_theta, test_w, lut, cell, acc)
             _blur(acc, tmp, taps)
             # The vote peaks are ranked by the exact score at their cell, and
             # only the best of them is polished (hill-climbing every peak
@@ -619,7 +613,7 @@ def search_translations(maps: TestMaps, train_xy: NDArray[np.float64],
     if len(train_theta) and len(maps.vote_theta):
         _search_kernel(train_xy, train_theta, train_w, np.asarray(inplanes, dtype=np.float64),
                        np.asarray(scales, dtype=np.float64), maps.vote_xy, maps.vote_theta,
-                       maps.vote_weight, maps.bin_start, maps.lut, maps.vote_radius,
+                       maps.vote_weight, maps.lut,
                        maps.density, maps.frame, maps.shape[0], maps.shape[1], float(cell), taps,
                        int(n_candidates), voters, bool(polish), out_score, out_t)
     return out_score, out_t
