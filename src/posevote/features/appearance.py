@@ -75,7 +75,30 @@ def box_descriptor(image: NDArray[np.floating], box: Sequence[float],
 
 
 @numba.njit(cache=True, nogil=True)
-def _hog_kernel(crop, cell, orientations, clip, eps, out):  # pragma: no cover - compiled
+def _gradient_bins(g_row, g_col, n, edge_cos, magnitude, bins):  # pragma: no cover - compiled
+    """Each pixel's gradient magnitude (double) and unsigned orientation bin, over a row.
+
+    The bin is how many edges' cosines lie at or above the direction's
+    cosine (they decrease), counted without a branch; the edge count is the
+    module's constant, so that the compiler unrolls it and vectorises the
+    row.
+    """
+    for c in range(n):
+        y = np.float64(g_row[c])
+        x = np.float64(g_col[c])
+        m = np.sqrt(x * x + y * y)
+        # Unsigned orientation: the direction folded into [0, 180) degrees.
+        x = -x if (y < 0.0) | ((y == 0.0) & (x < 0.0)) else x
+        cosine = x / (m if m > 0.0 else 1.0)
+        b = 0
+        for e in range(_ORIENTATIONS - 1):
+            b += cosine <= edge_cos[e]
+        magnitude[c] = m
+        bins[c] = b
+
+
+@numba.njit(cache=True, nogil=True)
+def _hog_kernel(crop, cell, clip, eps, out):  # pragma: no cover - compiled
     """Cell histograms of gradient orientation, then L2-Hys over 2 x 2 blocks, into ``out``.
 
     As scikit-image: central differences in single precision (0 on the
@@ -83,8 +106,10 @@ def _hog_kernel(crop, cell, orientations, clip, eps, out):  # pragma: no cover -
     orientation bin (lower edge inclusive) of the unsigned orientation, the
     cell's mean. The bin is found by comparing the gradient's direction
     cosine with the bin edges' instead of by an arctangent: the same bin
-    but within rounding of an edge, for a fraction of the cost.
+    but within rounding of an edge, for a fraction of the cost. A row's
+    gradients and bins are computed first (vectorised), then added up.
     """
+    orientations = _ORIENTATIONS
     h, w = crop.shape
     cy, cx = h // cell, w // cell
     hist = np.zeros((cy, cx, orientations))
@@ -92,30 +117,24 @@ def _hog_kernel(crop, cell, orientations, clip, eps, out):  # pragma: no cover -
     edge_cos = np.cos(np.arange(1, orientations) * (np.pi / orientations))
     # Integer division by a run-time cell size is slow per pixel: once per column.
     col_cell = np.arange(w) // cell
+    used = cx * cell  # the columns of whole cells
+    g_row = np.zeros(w, dtype=np.float32)
+    g_col = np.zeros(w, dtype=np.float32)
+    magnitude = np.empty(w)
+    bins = np.empty(w, dtype=np.int64)
     for r in range(cy * cell):
         cr = r // cell
-        for c in range(cx * cell):
-            g_row = np.float32(0.0)
-            g_col = np.float32(0.0)
-            if 0 < r < h - 1:
-                g_row = crop[r + 1, c] - crop[r - 1, c]
-            if 0 < c < w - 1:
-                g_col = crop[r, c + 1] - crop[r, c - 1]
-            y = np.float64(g_row)
-            x = np.float64(g_col)
-            magnitude = np.sqrt(x * x + y * y)
-            if magnitude == 0.0:
-                continue
-            # Unsigned orientation: the direction folded into [0, 180) degrees.
-            if y < 0.0 or (y == 0.0 and x < 0.0):
-                x = -x
-            cosine = x / magnitude
-            # The edges' cosines decrease: the bin is how many lie at or above
-            # the cosine, counted without a branch to mispredict.
-            b = 0
-            for e in range(orientations - 1):
-                b += cosine <= edge_cos[e]
-            hist[cr, col_cell[c], b] += magnitude
+        if 0 < r < h - 1:
+            for c in range(used):
+                g_row[c] = crop[r + 1, c] - crop[r - 1, c]
+        else:
+            g_row[:] = 0.0
+        for c in range(1, min(used, w - 1)):
+            g_col[c] = crop[r, c + 1] - crop[r, c - 1]
+        _gradient_bins(g_row, g_col, used, edge_cos, magnitude, bins)
+        for c in range(used):
+            if magnitude[c] > 0.0:
+                hist[cr, col_cell[c], bins[c]] += magnitude[c]
     hist /= cell * cell
     k = 0
     block = np.empty(4 * orientations)
@@ -145,7 +164,7 @@ def hog(crop: NDArray[Any]) -> NDArray[np.float32]:
     """HOG descriptor of a grey crop (at least 16 x 16 pixels), as :func:`hog_reference`."""
     crop = np.ascontiguousarray(crop, dtype=np.float32)
     out = np.empty(descriptor_length(crop.shape[:2]), dtype=np.float64)
-    _hog_kernel(crop, _CELL, _ORIENTATIONS, _HYS_CLIP, _EPS, out)
+    _hog_kernel(crop, _CELL, _HYS_CLIP, _EPS, out)
     return out.astype(np.float32)
 
 
