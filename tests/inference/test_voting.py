@@ -14,6 +14,7 @@ from posevote.inference.voting import (
     density_at,
     gather_score,
     gather_score_reference,
+    POLISHED_STEPS,
     place_features,
     search_translations,
     shifted_score,
@@ -187,3 +188,25 @@ def test_density_options_and_chance(scene):
     assert capped.density.max() <= 0.5 + 1e-6
     half, shape = scaled_features(feats, (100, 120), 2.0)
     assert shape == (50, 60) and np.allclose(half.xy, feats.xy / 2.0)
+
+
+def test_only_the_best_steps_are_polished(scene):
+    # Thirteen in-plane angles in one call: the POLISHED_STEPS whose exact
+    # score at the vote cell is best are polished as in a call of their own,
+    # the others keep the unpolished score and cell.
+    train_xy, train_theta, train_w, alpha, scale, _, maps = scene
+    angles = alpha + np.radians(np.arange(-30, 31, 5))
+    kw = {"scales": np.array([scale]), "n_candidates": 2}
+    rough, rough_t = search_translations(maps, train_xy, train_theta, train_w, inplanes=angles,
+                                         polish=False, **kw)
+    score, trans = search_translations(maps, train_xy, train_theta, train_w, inplanes=angles, **kw)
+    best = np.argsort(-rough[:, 0], kind="stable")[:POLISHED_STEPS]
+    rest = np.setdiff1d(np.arange(len(angles)), best)
+    assert len(angles) > POLISHED_STEPS and 6 in best
+    np.testing.assert_array_equal(score[rest], rough[rest])
+    np.testing.assert_array_equal(trans[rest], rough_t[rest])
+    for k in best:
+        alone, alone_t = search_translations(maps, train_xy, train_theta, train_w,
+                                             inplanes=angles[k:k + 1], **kw)
+        assert score[k, 0] == alone[0, 0] >= rough[k, 0]
+        np.testing.assert_array_equal(trans[k], alone_t[0])
