@@ -79,7 +79,7 @@ PRESETS: dict[str, Preset] = {p.name: p for p in (
         chosen_on="COIL-100 training views pasted on clutter (self-test and cross-validation "
                   "on the training views)",
         script="benchmarks/coil_instance.py --selftest --clutter / --cv --clutter",
-        measured="COIL instance protocol in clutter 4.30 / 13.23 deg, 68.9% of positions "
+        measured="COIL instance protocol in clutter 4.30 / 13.25 deg, 68.8% of positions "
                  "within 5 px (docs/results/coil_instance_clutter.md)",
         params={"search": SearchOptions(inplane_range_deg=(-30.0, 30.0), inplane_step_deg=5.0,
                                         scale_range=(0.7, 1.3), scale_steps=7,
