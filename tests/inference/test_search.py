@@ -174,3 +174,46 @@ def test_a_ranking_search_probes_the_scales_between_at_the_best_viewpoints(fitte
                                   everywhere.score[probed][:, :, 1::2])
     assert not ranked.score[np.setdiff1d(np.arange(18), probed)][:, :, 1::2].any()
     np.testing.assert_array_equal(ranked.translation[:, :, ::2], everywhere.translation[:, :, ::2])
+
+
+def test_a_polished_search_on_one_set_of_maps_polishes_near_its_best_viewpoints(
+        fitted_estimator, draw):
+    # The default preset's search: every viewpoint unpolished, then the
+    # viewpoints within the fit's reach of the POLISHED_MODES best polished
+    # as a polished search of every viewpoint polishes them.
+    from posevote.features.edges import extract_edges
+    from posevote.inference import probe_poses
+    from posevote.inference.search import (
+        MAX_VOTERS,
+        POLISH_REACH_STEPS,
+        POLISHED_MODES,
+        VOTE_CANDIDATES,
+        probe,
+        probe_spacing,
+        search_maps,
+    )
+    from posevote.model.kernels import K1_CUTOFF
+    from posevote.refinement.fitting import FIT_RADIUS_STEPS
+
+    assert POLISH_REACH_STEPS == FIT_RADIUS_STEPS
+    est = fitted_estimator
+    setup = est.setup()
+    image = draw(np.radians(60))
+    maps = search_maps(extract_edges(image, est.edges, training=False), image.shape, est.model_,
+                       setup)
+    probes = probe(est.model_, maps, setup)
+    kw = dict(azimuths=probes.azimuth, elevations=probes.elevation, inplanes=probes.inplane,
+              scales=probes.scale, viewpoint_kappa=setup.viewpoint_kappa, k1_cutoff=K1_CUTOFF,
+              max_voters=MAX_VOTERS, n_candidates=VOTE_CANDIDATES)
+    rough = probe_poses(est.model_, maps, polish=False, **kw)
+    fine = probe_poses(est.model_, maps, polish=True, **kw)
+    top = np.argsort(-rough.score.max(axis=(1, 2)), kind="stable")[:POLISHED_MODES]
+    d = rough.directions
+    near = (d @ d[top].T >= np.cos(POLISH_REACH_STEPS * probe_spacing(rough))).any(axis=1)
+    assert 3 <= near.sum() < len(near)
+    np.testing.assert_array_equal(probes.score[near], fine.score[near])
+    np.testing.assert_array_equal(probes.translation[near], fine.translation[near])
+    np.testing.assert_array_equal(probes.score[~near], rough.score[~near])
+    np.testing.assert_array_equal(probes.translation[~near], rough.translation[~near])
+    # The best probe is the polished search's.
+    assert probes.score.max() == fine.score.max()

@@ -13,7 +13,7 @@ import threading
 import weakref
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cached_property
 from typing import Any
 
@@ -24,7 +24,12 @@ from posevote._options import Options
 from posevote.features.edges import EdgeFeatures
 from posevote.geometry import viewing_direction
 from posevote.inference.maps import MAX_MAP_BYTES, TestMaps, prepare_test, scaled_features
-from posevote.inference.voting import search_translations, strongest_voters, subsample_features
+from posevote.inference.voting import (
+    polish_translations,
+    search_translations,
+    strongest_voters,
+    subsample_features,
+)
 from posevote.model.density import PoseModel, viewpoint_weights
 from posevote.model.kernels import K1_CUTOFF, ORIENTATION_KAPPA
 from posevote.model.morph import morphed_positions
@@ -53,6 +58,12 @@ NEAR_SCALE_STEPS = 1.5
 #: those that score best on the first: chosen on the five epfl-cv folds (the
 #: same share under 45 degrees on each fold as all scales everywhere).
 RANKING_VIEWPOINTS = 1.0 / 3.0
+#: A polished search over one set of maps (the default preset's) probes every
+#: viewpoint unpolished, then polishes the viewpoints the continuous fit of the
+#: POLISHED_MODES best will read: those within POLISH_REACH_STEPS probe
+#: spacings of them (the fit's reach, ``refinement.fitting.FIT_RADIUS_STEPS``).
+POLISHED_MODES = 3
+POLISH_REACH_STEPS = 2.5
 #: Several objects in one image: a box overlapping one already found by more
 #: than this IoU is the same object found again.
 OBJECT_OVERLAP = 0.3
@@ -633,10 +644,39 @@ def probe(model: PoseModel, maps: TestMaps | Sequence[TestMaps | None], setup: S
         inplanes=inplanes, viewpoint_kappa=setup.viewpoint_kappa, use_weights=setup.use_weights,
         k1_cutoff=K1_CUTOFF, max_voters=MAX_VOTERS, max_features=opts.max_search_features,
         n_candidates=VOTE_CANDIDATES, n_threads=setup.n_threads, polish=polish)
+    if isinstance(given, TestMaps) and polish and near is None and len(az) >= 6:
+        return _polished_near_modes(model, given, az, el, scales, progress=progress, **kw)
     if isinstance(given, TestMaps) or len(scales) < 4 or len(az) < 6:
         return probe_poses(model, given, azimuths=az, elevations=el, scales=scales,
                            progress=progress, **kw)
     return _ranking_probes(model, given, az, el, scales, progress=progress, **kw)
+
+
+def _polished_near_modes(model: PoseModel, maps: TestMaps, az: NDArray[np.float64],
+                         el: NDArray[np.float64], scales: NDArray[np.float64], *,
+                         progress: Callable[[int], None] | None, **kw: Any) -> ProbeSet:
+    """Every viewpoint unpolished, then those near the :data:`POLISHED_MODES` best polished.
+
+    The polished probes are what a polished search gives them; the others
+    keep the exact score at their vote cell (a cell's width from the peak at
+    most), enough to rank viewpoints that no fit reads.
+    """
+    rough = probe_poses(model, maps, azimuths=az, elevations=el, scales=scales,
+                        progress=progress, **{**kw, "polish": False})
+    top = np.argsort(-rough.score.max(axis=(1, 2)), kind="stable")[:POLISHED_MODES]
+    d = rough.directions
+    reach = np.cos(POLISH_REACH_STEPS * probe_spacing(rough))
+    score, translation = rough.score.copy(), rough.translation.copy()
+    for v in np.flatnonzero((d @ d[top].T >= reach).any(axis=1)):
+        xy, theta, weight, _, _ = _probe_features(
+            model, float(az[v]), float(el[v]), viewpoint_kappa=kw["viewpoint_kappa"],
+            use_weights=kw["use_weights"], k1_cutoff=kw["k1_cutoff"],
+            max_features=kw["max_features"], max_voters=kw["max_voters"])
+        if weight.sum() > 0:
+            score[v], translation[v] = polish_translations(
+                maps, xy, theta, weight, inplanes=kw["inplanes"], scales=scales,
+                score=rough.score[v], translation=rough.translation[v])
+    return replace(rough, score=score, translation=translation)
 
 
 def _ranking_probes(model: PoseModel, maps: list[TestMaps], az: NDArray[np.float64],

@@ -550,6 +550,61 @@ def _search_kernel(train_xy, train_theta, train_w, alphas, scales, test_xy, test
             out_t[a, s, 1] = best_v
 
 
+@numba.njit(cache=True, nogil=True)
+def _polish_steps(train_xy, train_theta, train_w, alphas, scales, density, frame, score, t,
+                  out_score, out_t):  # pragma: no cover - compiled
+    """:func:`_polish` of every step of an unpolished search from its vote cell (``t``)."""
+    m = train_xy.shape[0]
+    px = np.empty(m)
+    py = np.empty(m)
+    obins = np.empty((m, 2), dtype=np.int64)
+    ofrac = np.empty(m)
+    cache = np.empty((2 * _POLISH_RADIUS + 1, 2 * _POLISH_RADIUS + 1))
+    for a in range(alphas.shape[0]):
+        for s in range(scales.shape[0]):
+            out_score[a, s] = score[a, s]
+            out_t[a, s, 0] = t[a, s, 0]
+            out_t[a, s, 1] = t[a, s, 1]
+            # A step without a vote peak scored 0 at the origin.
+            if score[a, s] <= 0.0 and t[a, s, 0] == 0.0 and t[a, s, 1] == 0.0:
+                continue
+            best, u, v = _polish(density, frame, train_xy, train_theta, train_w, alphas[a],
+                                 scales[s], t[a, s, 0], t[a, s, 1], px, py, obins, ofrac, cache)
+            out_score[a, s] = max(best, 0.0)
+            out_t[a, s, 0] = u
+            out_t[a, s, 1] = v
+
+
+def polish_translations(maps: TestMaps, train_xy: NDArray[np.float64],
+                        train_theta: NDArray[np.float64], train_w: NDArray[np.float64], *,
+                        inplanes: NDArray[np.float64], scales: NDArray[np.float64],
+                        score: NDArray[np.float64], translation: NDArray[np.float64]
+                        ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Polish the steps of an unpolished :func:`search_translations`, later.
+
+    ``score`` and ``translation`` are what that search returned with
+    ``polish=False`` for the same features (subsampled as it used them),
+    angles and scales; each step is hill-climbed from its vote cell as a
+    polished search would have done (the same scores and translations, but
+    that every step is polished here: :data:`POLISHED_STEPS` does not apply).
+
+    Returns
+    -------
+    score : ndarray, shape (A, S)
+    translation : ndarray, shape (A, S, 2)
+    """
+    out_score = np.zeros((len(inplanes), len(scales)))
+    out_t = np.zeros((len(inplanes), len(scales), 2))
+    if len(train_theta):
+        _polish_steps(np.ascontiguousarray(train_xy, dtype=np.float64),
+                      np.ascontiguousarray(train_theta, dtype=np.float64),
+                      np.ascontiguousarray(train_w, dtype=np.float64),
+                      np.asarray(inplanes, dtype=np.float64), np.asarray(scales, dtype=np.float64),
+                      maps.density, maps.frame, np.ascontiguousarray(score, dtype=np.float64),
+                      np.ascontiguousarray(translation, dtype=np.float64), out_score, out_t)
+    return out_score, out_t
+
+
 def subsample_features(xy: NDArray[np.float64], theta: NDArray[np.float64],
                        weight: NDArray[np.float64], max_features: int | None
                        ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
