@@ -604,7 +604,9 @@ def probe(model: PoseModel, maps: TestMaps | Sequence[TestMaps | None], setup: S
         appearance verification, which moves the boxes itself). With
         per-scale maps, polished or not, the scales between every other one
         are probed only at the best viewpoints (:data:`RANKING_VIEWPOINTS`),
-        the others scoring 0.
+        the others scoring 0. With one set of maps, a full search (no
+        ``near``) of six viewpoints or more polishes only the viewpoints
+        near its :data:`POLISHED_MODES` best (:func:`_polished_near_modes`).
 
     Returns
     -------
