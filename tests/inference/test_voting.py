@@ -6,6 +6,7 @@ import pytest
 from posevote.features import EdgeFeatures
 from posevote.inference.maps import prepare_test
 from posevote.inference.voting import (
+    POLISHED_STEPS,
     _blur,
     accumulate_votes,
     accumulate_votes_reference,
@@ -14,7 +15,6 @@ from posevote.inference.voting import (
     density_at,
     gather_score,
     gather_score_reference,
-    POLISHED_STEPS,
     place_features,
     polish_translations,
     search_translations,

@@ -119,8 +119,8 @@ class PoseModel:
     def viewpoints(self) -> NDArray[np.float64]:
         """The distinct training viewpoints ``(azimuth, elevation)``, radians, rounded to 1e-9
         and sorted, shape (P, 2); cached, as every search starts from them."""
-        pairs = np.unique(np.round(np.stack([self.view_azimuth, self.view_elevation], 1), 9),
-                          axis=0)
+        pairs = np.asarray(np.unique(np.round(np.stack([self.view_azimuth, self.view_elevation],
+                                                       1), 9), axis=0), dtype=np.float64)
         pairs.flags.writeable = False
         return pairs
 
