@@ -312,6 +312,17 @@ class ProbeSet:
         """Viewing direction of each probed viewpoint, shape (V, 3)."""
         return viewing_direction(self.azimuth, self.elevation)
 
+    @cached_property
+    def spacing(self) -> float:
+        """Median angle between a probed viewpoint and its nearest neighbour, radians (pi
+        for fewer than two); cached, as every fit of the probes' modes reads it."""
+        d = self.directions
+        if len(d) < 2:
+            return float(np.pi)
+        cosines = np.clip(d @ d.T, -1.0, 1.0)
+        np.fill_diagonal(cosines, -1.0)
+        return float(np.median(np.arccos(cosines.max(axis=1))))
+
     def boxes(self) -> NDArray[np.float64]:
         """Box ``(x, y, w, h)`` of every probe, pixels, shape (V, A, S, 4)."""
         size = np.broadcast_to(self.box[:, None, None, :] * self.scale[None, None, :, None],
@@ -326,12 +337,7 @@ class ProbeSet:
 
 def probe_spacing(probes: ProbeSet) -> float:
     """Median angle between a probed viewpoint and its nearest neighbour."""
-    d = probes.directions
-    if len(d) < 2:
-        return np.pi
-    cosines = np.clip(d @ d.T, -1.0, 1.0)
-    np.fill_diagonal(cosines, -1.0)
-    return float(np.median(np.arccos(cosines.max(axis=1))))
+    return probes.spacing
 
 
 def viewpoint_grid(model: PoseModel, *, subdivisions: int = 1, step: float | None = None
