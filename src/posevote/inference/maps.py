@@ -400,7 +400,7 @@ def orientation_planes(xy: NDArray[np.float64], theta: NDArray[np.float64],
     Plane ``b`` holds the points of mass ``weight * orientation_kernel(theta - centres[b],
     kappa)``; each plane's strengths are computed and splatted in one compiled pass, into
     one buffer the planes share (the same planes as :func:`blurred_points` of the
-    strengths, to rounding; a buffer per plane took a cache-missing write per plane).
+    strengths; writing all the planes point by point missed the cache on large grids).
 
     Returns
     -------
