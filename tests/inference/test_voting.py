@@ -68,14 +68,14 @@ def test_vote_blur_matches_reference(shape, width):
     np.testing.assert_allclose(acc, want, rtol=1e-12, atol=1e-15)
 
 
-@pytest.mark.parametrize("sigma", [2.0, 9.5])
+@pytest.mark.parametrize(("sigma", "block"), [(2.0, 1), (7.0, 3), (9.5, 4)])
 @pytest.mark.parametrize("t", [(70.0, 50.0), (71.3, 48.6), (5.0, 5.0), (118.5, 98.7)])
-def test_score_kernels_match_reference(scene, t, sigma):
+def test_score_kernels_match_reference(scene, t, sigma, block):
     train_xy, train_theta, train_w, alpha, scale, _, maps = scene
-    # A wide kernel's maps are on a grid of 3-pixel cells.
+    # A wide kernel's maps are on a grid of blocks: odd (centred on a pixel) and even.
     maps = prepare_test(EdgeFeatures(xy=maps.xy, theta=maps.theta), (100, 120),
                         position_sigma=sigma, orientation_kappa=8.0)
-    assert maps.grid == (1 if sigma < 6 else 3)
+    assert maps.grid == block
     got = gather_score(maps.density, maps.frame, train_xy, train_theta, train_w, alpha, scale, *t)
     ref = gather_score_reference(maps, train_xy, train_theta, train_w, alpha, scale, *t)
     assert got == pytest.approx(ref, rel=1e-9, abs=1e-12)
