@@ -79,7 +79,7 @@ PRESETS: dict[str, Preset] = {p.name: p for p in (
         chosen_on="COIL-100 training views pasted on clutter (self-test and cross-validation "
                   "on the training views)",
         script="benchmarks/coil_instance.py --selftest --clutter / --cv --clutter",
-        measured="COIL instance protocol in clutter 4.30 / 13.25 deg, 68.8% of positions "
+        measured="COIL instance protocol in clutter 4.31 / 13.47 deg, 68.8% of positions "
                  "within 5 px (docs/results/coil_instance_clutter.md)",
         params={"search": SearchOptions(inplane_range_deg=(-30.0, 30.0), inplane_step_deg=5.0,
                                         scale_range=(0.7, 1.3), scale_steps=7,
@@ -105,8 +105,8 @@ PRESETS: dict[str, Preset] = {p.name: p for p in (
         chosen_on="EPFL cars 1-10, the two-fold epfl-cv (cars 1-5 <-> 6-10); the search "
                   "re-checked on the five-fold epfl-cv (8 training cars per fold)",
         script="benchmarks/tune_epfl.py",
-        measured="five-fold epfl-cv every 4th frame 4.00 / 23.1 deg, 86.9% under 45 deg, "
-                 "8.8% flips, 97.0% found (docs/results/epfl-cv)",
+        measured="five-fold epfl-cv every 4th frame 3.98 / 22.7 deg, 86.9% under 45 deg, "
+                 "8.1% flips, 97.3% found (docs/results/epfl-cv)",
         params={"edges": EdgeOptions(max_train_features=150),
                 "kernel": KernelOptions(position_sigma=6.0, viewpoint_bandwidth_deg=5.0),
                 "search": _EPFL_SEARCH,
