@@ -304,9 +304,9 @@ def blurred_points(xy: NDArray[np.float64], values: NDArray[np.float64], shape: 
     to their pixels. Wider ones splat the points bilinearly on a grid of
     ``k x k`` blocks (which keeps their centroid) and blur at ``sigma / k``:
     the cost of a few taps instead of ``6 sigma``, and read bilinearly
-    within about 8% of the exact sum of Gaussians at its peak, where
-    rounding a 4-pixel kernel's points to the pixels errs by more. Outside
-    the image the plane is 0.
+    within about 8% of the exact sum of Gaussians at its peak and, from a
+    4-pixel kernel on, closer to it than the points rounded to their
+    pixels. Outside the image the plane is 0.
 
     Parameters
     ----------
