@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from posevote.model.kernels import kappa_for_width, orientation_cutoff, orientation_kernel
+from posevote.model.kernels import kappa_for_width, orientation_kernel
 
 
 def test_orientation_kernel_is_undirected_and_peaks_at_one():
@@ -12,4 +12,3 @@ def test_orientation_kernel_is_undirected_and_peaks_at_one():
     assert orientation_kernel(np.pi / 2, 5.0) < 1e-4
     k = kappa_for_width(0.2, doubled=True)
     assert orientation_kernel(0.2, k) == pytest.approx(0.5)
-    assert orientation_kernel(orientation_cutoff(k, 0.1), k) == pytest.approx(0.1)

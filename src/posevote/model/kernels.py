@@ -89,8 +89,3 @@ def kappa_for_width(width: float, *, level: float = 0.5, doubled: bool = False) 
     angle = 2.0 * width if doubled else width
     return float(-np.log(level) / (1.0 - np.cos(angle)))
 
-
-def orientation_cutoff(kappa: float, level: float) -> float:
-    """Orientation difference (radians) beyond which the kernel is below ``level``."""
-    c = 1.0 + np.log(level) / kappa
-    return float(np.pi / 2.0 if c <= -1.0 else 0.5 * np.arccos(c))
