@@ -229,3 +229,25 @@ def test_polishing_later_is_polishing_in_the_search(scene):
     assert not np.array_equal(fine, rough)
     np.testing.assert_array_equal(later, fine)
     np.testing.assert_array_equal(later_t, fine_t)
+
+
+@pytest.mark.parametrize("offset", [(6.0, -5.0), (-3.0, 7.0), (1.0, 0.0)])
+def test_the_polish_climbs_to_the_peak_from_pixels_away(scene, offset):
+    # From a start several pixels off (odd and even offsets: the climb
+    # strides 2 pixels, then steps 1), the polish ends on the exact score's
+    # peak, above the score at the start and at the peak's pixel neighbours.
+    train_xy, train_theta, train_w, alpha, scale, t, maps = scene
+    kw = {"inplanes": np.array([alpha]), "scales": np.array([scale])}
+    start = np.array([[t + np.array(offset)]])
+    score, trans = polish_translations(maps, train_xy, train_theta, train_w, score=np.ones((1, 1)),
+                                       translation=start, **kw)
+    assert trans[0, 0] == pytest.approx(t, abs=0.5)
+
+    def exact(u, v):
+        return gather_score(maps.density, maps.frame, train_xy, train_theta, train_w, alpha,
+                            scale, u, v)
+
+    assert score[0, 0] > exact(*start[0, 0])
+    peak = np.floor(trans[0, 0] + 0.5)
+    for du, dv in ((1, 0), (-1, 0), (0, 1), (0, -1)):
+        assert score[0, 0] >= exact(peak[0] + du, peak[1] + dv)

@@ -27,6 +27,8 @@ flat profile) is replaced by the best probe's value.
 
 from __future__ import annotations
 
+import statistics
+
 import numba
 import numpy as np
 from numpy.typing import NDArray
@@ -395,14 +397,14 @@ def _fit(probes: ProbeSet, v0: int, a0: int, s0: int, radius_steps: float, span:
             lo += [az0 - step_v, el0 - step_v, k0 / 16.0]
             hi += [az0 + step_v, el0 + step_v, k0 * 50.0]
     if layout["inplane"]:
-        step_a = float(np.median(np.diff(probes.inplane)))
+        step_a = statistics.median(np.diff(probes.inplane).tolist())
         k0 = np.log(2.0) / (1.0 - np.cos(step_a))
         mu0 = probes.inplane[a0]
         p0 += [mu0, k0]
         lo += [mu0 - step_a, k0 / 16.0]
         hi += [mu0 + step_a, k0 * 50.0]
     if layout["scale"]:
-        step_s = float(np.median(np.diff(np.log(probes.scale))))
+        step_s = statistics.median(np.diff(np.log(probes.scale)).tolist())
         mu0 = float(np.log(probes.scale[s0]))
         p0 += [mu0, step_s]
         lo += [mu0 - step_s, step_s / 20.0]
@@ -417,7 +419,9 @@ def _fit(probes: ProbeSet, v0: int, a0: int, s0: int, radius_steps: float, span:
     # may legitimately reach the bound (the truth halfway between views).
     p = fit.copy()
     n_view = (2 if probes.turntable else 3) if layout["view"] else 0
-    on_bound = np.isclose(p, lo) | np.isclose(p, hi)
+    # np.isclose's test, written out (a tenth of a fit's time in its own checks).
+    on_bound = (np.abs(p - lo) <= 1e-8 + 1e-5 * np.abs(lo)) | (
+        np.abs(p - hi) <= 1e-8 + 1e-5 * np.abs(hi))
     on_bound[:2 + n_view] = False
     p[on_bound] = p0[on_bound]
     i = 2
@@ -487,7 +491,8 @@ def _box_at(probes: ProbeSet, az: float, el: float) -> NDArray[np.float64]:
     d = probes.directions @ viewing_direction(az, el)
     near = np.argsort(-d)[:2]
     ang = np.arccos(np.clip(d[near], -1, 1)) + 1e-9
-    return np.average(probes.box[near], axis=0, weights=1.0 / ang)
+    weights = 1.0 / ang
+    return (probes.box[near] * weights[:, None]).sum(axis=0) / weights.sum()
 
 
 def box_from_pose(position: NDArray[np.float64], size: NDArray[np.float64], alpha: float
