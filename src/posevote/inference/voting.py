@@ -477,8 +477,13 @@ def _search_kernel(train_xy, train_theta, train_w, alphas, scales, test_xy, test
                    polish, out_score, out_t):  # pragma: no cover - compiled
     gh = int(np.ceil(h / cell)) + 1
     gw = int(np.ceil(w / cell)) + 1
-    acc = np.zeros((gh, gw))
-    tmp = np.zeros((gh, gw))
+    votes = np.zeros((gh, gw))
+    # The votes are summed in double precision (the scattered adds are no
+    # faster in single) and blurred in single, in two-thirds of the time: they
+    # only rank cells, for the exact score to judge.
+    acc = np.zeros((gh, gw), dtype=np.float32)
+    tmp = np.zeros((gh, gw), dtype=np.float32)
+    taps = taps.astype(np.float32)
     # The polish's per-pose tables; an unpolished search needs none.
     m = train_xy.shape[0] if polish else 0
     px = np.empty(m)
@@ -494,9 +499,10 @@ def _search_kernel(train_xy, train_theta, train_w, alphas, scales, test_xy, test
     peaks = np.full((n_a * n_s, 2), -1, dtype=np.int64)
     for a in range(n_a):
         for s in range(n_s):
-            acc[:, :] = 0.0
+            votes[:, :] = 0.0
             accumulate_votes(voter_xy, voter_theta, voter_w, alphas[a], scales[s], test_xy,
-                             test_theta, test_w, lut, cell, acc)
+                             test_theta, test_w, lut, cell, votes)
+            acc[:, :] = votes
             _blur(acc, tmp, taps)
             # The vote peaks are ranked by the exact score at their cell, and
             # only the best of them is polished (hill-climbing every peak
