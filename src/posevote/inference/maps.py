@@ -420,8 +420,9 @@ def orientation_planes(xy: NDArray[np.float64], theta: NDArray[np.float64],
     for b, centre in enumerate(np.asarray(centres, dtype=np.float64)):
         _splat_orientation(index, fx, fy, cos_t, sin_t, weight, float(centre), float(kappa),
                            float(k * k), k > 1, gw, splat)
-        out[b] = cv2.GaussianBlur(splat.astype(np.float32).reshape(gh, gw), (0, 0), width,
-                                  borderType=cv2.BORDER_CONSTANT)
+        # Blurred straight into its plane (a copy of the plane less).
+        cv2.GaussianBlur(splat.astype(np.float32).reshape(gh, gw), (0, 0), width, dst=out[b],
+                         borderType=cv2.BORDER_CONSTANT)
     return out
 
 
