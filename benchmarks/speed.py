@@ -135,7 +135,7 @@ def main(argv: list[str] | None = None) -> int:
                 (f"  the same, n_jobs={cores} (threads reading the images)", train_threads_s,
                  "train")]
         for name, value, key in rows:
-            print(f"{name:<58}{value:>9.3f}{TARGETS[key]:>9.3f}{value / TARGETS[key]:>10.1f}")
+            print(f"{name:<58}{value:>9.4f}{TARGETS[key]:>9.3f}{value / TARGETS[key]:>10.2f}")
         if line2d is not None:
             l2d = float(np.median(line2d["seconds"]))
             print(f"LINE-2D (OpenCV {line2d['opencv']}, {line2d['templates']} templates) "
