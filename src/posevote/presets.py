@@ -64,7 +64,7 @@ PRESETS: dict[str, Preset] = {p.name: p for p in (
         chosen_on="COIL-100, the 16 objects of the paper: views at 0, 40, ..., 320 deg "
                   "trained, the training views between them tested",
         script="benchmarks/tune_coil_cv.py",
-        measured="COIL instance protocol 1.82 / 3.15 deg median / mean "
+        measured="COIL instance protocol 1.81 / 3.15 deg median / mean "
                  "(docs/results/coil_instance.md); min_score by 5-fold cross-validation "
                  "over the 40 development objects: 91% of right-object views kept, 86% of "
                  "other objects' views and background crops rejected "
