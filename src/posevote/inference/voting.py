@@ -441,8 +441,8 @@ def _polish(density, frame, train_xy, train_theta, train_w, alpha, scale, u0, v0
     vals = np.empty((3, 3))
     # The climb strides 2 pixels and compares shifts on a subset of the
     # features; then, on all of them, it climbs the 1-pixel 4-neighbours, so
-    # that the peak is one of the exact score (a quarter fewer scores than a
-    # 1-pixel climb from the vote cell, which stops on no better peaks).
+    # that the peak is one of the exact score (a fifth fewer scores than a
+    # 1-pixel climb from the vote cell, ending on peaks no lower).
     step = max(1, train_w.shape[0] // _CLIMB_FEATURES)
     cache[:, :] = np.nan
     pu, pv = _climb(density, frame, train_w, px, py, obins, ofrac, cache, vals, 0, 0, step, True,
