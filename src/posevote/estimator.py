@@ -32,7 +32,6 @@ from posevote.inference.search import (
     SearchSetup,
     image_maps,
     probe,
-    scale_maps,
     search_maps,
 )
 from posevote.inference.verification import verify
@@ -355,14 +354,13 @@ class PoseEstimator(GroupedParams):
         hyps = [refine_mode(probes, v, fit=self.fitting, radius_steps=FIT_RADIUS_STEPS)
                 for v in modes]
         recognizing = self.recognition is not None and len(model.instance_names) > 1
-        fine = image_maps(feats, shape, setup) if hyps and (
-            self.local_refinement or recognizing) else None
-        if self.local_refinement and hyps and fine is not None:
-            # The probes' own scales: after the verification, only those near its box.
-            narrow = scale_maps(feats, shape, setup, scales=probes.scale) \
-                if self.search.object_kernel and self.fitting else None
-            hyps[0] = local_refine(probes, modes[0], hyps[0], model, fine, setup,
-                                   fitting=self.fitting, scale_maps=narrow)
+        fine = image_maps(feats, shape, setup) if hyps and recognizing else None
+        if self.local_refinement and hyps:
+            # In object units, at the probes' own scales (after the verification,
+            # only those near its box).
+            hyps[0] = local_refine(probes, modes[0], hyps[0], model, setup, fitting=self.fitting,
+                                   features=feats, shape=shape, maps=fine,
+                                   object_units=self.search.object_kernel)
         instance, margin = "", float("nan")
         if recognizing and hyps and fine is not None and self.recognition is not None:
             hyps, instance, margin = recognize(hyps, feats, self.full_model_, maps, fine, setup,

@@ -96,6 +96,41 @@ def test_restrict_maps_keeps_the_window_only(sigma):
                                            rel=1e-12)
 
 
+
+@pytest.mark.parametrize(("sigma", "region"), [(1.5, (10, 20, 60, 70)), (2.0, (0, 0, 30, 40)),
+                                               (3.2, (95, 80, 140, 125)), (2.0, (-5, -5, 200, 200))])
+def test_a_region_holds_the_whole_images_maps_there(sigma, region):
+    # Features past the border too (they land on its pixels in both).
+    rng = np.random.default_rng(11)
+    shape, n = (110, 130), 700
+    feats = EdgeFeatures(xy=np.column_stack([rng.uniform(-4, 134, n), rng.uniform(-4, 114, n)]),
+                         theta=rng.uniform(0, np.pi, n))
+    kw = {"position_sigma": sigma, "orientation_kappa": 8.0}
+    whole = prepare_test(feats, shape, **kw)
+    part = prepare_test(feats, shape, region=region, **kw)
+    u0, v0, u1, v1 = (int(b) for b in part.window)
+    assert (u0, v0, u1, v1) == (max(region[0], 0), max(region[1], 0), min(region[2], 129),
+                                min(region[3], 109))
+    np.testing.assert_allclose(part.density[:, v0:v1 + 1, u0:u1 + 1],
+                               whole.density[:, v0:v1 + 1, u0:u1 + 1], rtol=0, atol=1e-6)
+    outside = np.ones(shape, dtype=bool)
+    outside[v0:v1 + 1, u0:u1 + 1] = False
+    assert not part.density[:, outside].any()
+    # The chance level is still the whole image's, from the points alone.
+    assert part.chance == pytest.approx(whole.chance, rel=1e-6)
+    assert len(part.vote_weight) == 0
+
+
+def test_a_region_refuses_what_it_cannot_tabulate():
+    feats = EdgeFeatures(xy=np.array([[10.0, 10.0]]), theta=np.array([0.3]))
+    kw = {"position_sigma": 2.0, "orientation_kappa": 8.0, "region": (0, 0, 20, 20)}
+    with pytest.raises(ValueError, match="density_cap"):
+        prepare_test(feats, (40, 40), density_cap=0.5, **kw)
+    with pytest.raises(ValueError, match="density_cap"):
+        prepare_test(feats, (40, 40), **{**kw, "position_sigma": 9.0})
+    with pytest.raises(ValueError, match="no pixel"):
+        prepare_test(feats, (40, 40), **{**kw, "region": (50, 50, 60, 60)})
+
 def _gaussian_sum(xy, shape, sigma):
     rows, cols = np.mgrid[0:shape[0], 0:shape[1]]
     return sum(np.exp(-((cols - u) ** 2 + (rows - v) ** 2) / (2 * sigma**2)) / (2 * np.pi * sigma**2)

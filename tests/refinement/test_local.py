@@ -7,7 +7,7 @@ from posevote.features.edges import extract_edges
 from posevote.inference.search import SearchOptions, image_maps, scale_maps
 from posevote.model.kernels import K1_CUTOFF
 from posevote.refinement import find_modes, polish_pose, refine_mode
-from posevote.refinement.local import profile_refine
+from posevote.refinement.local import in_frame, local_refine, probe_pose, profile_refine
 
 
 @pytest.fixture(scope="module")
@@ -135,16 +135,24 @@ def test_rescale_anchor_finds_the_scale_in_object_units(synthetic_training, draw
     img = draw(np.radians(40.0), scale=1.15, centre=(64.0, 64.0), size=160)
     probes, feats = est.probe(img)
     shape = img.shape[:2]
-    maps = scale_maps(feats, shape, est.setup())
-    kw = dict(viewpoint_kappa=est.viewpoint_kappa_, k1_cutoff=K1_CUTOFF)
     mode = find_modes(probes)[0]
-    anchor, s = rescale_anchor(probes, mode, est.model_, maps, **kw)
+    anchor, s = rescale_anchor(probes, mode, est.model_, feats, shape, est.setup())
     assert anchor.scale == pytest.approx(1.15, rel=0.06)
     assert abs(np.log(probes.scale[s] / 1.15)) <= 0.5 * np.log(1.3 / 0.7) / 4 + 1e-9
     x, y, w, h = object_box(img)
     assert anchor.position == pytest.approx((x + (w - 1) / 2, y + (h - 1) / 2), abs=3.0)
-    with pytest.raises(ValueError, match="one TestMaps per scale"):
-        rescale_anchor(probes, mode, est.model_, maps[:2], **kw)
+    # Each scale's maps around its probe only: the same polish as on the whole image's.
+    kw = dict(viewpoint_kappa=est.viewpoint_kappa_, k1_cutoff=K1_CUTOFF)
+    factor = float(probes.scale[s])
+    a = int(np.argmax(probes.score[mode, :, s]))
+    start = in_frame(probe_pose(probes, mode, a, s), factor)
+    half = 0.5 * float(np.median(np.diff(np.log(probes.scale))))
+    whole = polish_pose(start, est.model_, scale_maps(feats, shape, est.setup())[s], **kw,
+                        scale_bounds=(float(np.exp(-half)), float(np.exp(half))))
+    assert in_frame(whole, 1.0 / factor).position == pytest.approx(anchor.position, abs=1e-6)
+    with pytest.raises(ValueError, match="features and shape"):
+        local_refine(probes, mode, anchor, est.model_, est.setup(), fitting=True,
+                     object_units=True)
 
 
 def test_compass_search_kernel_agrees_with_reference():

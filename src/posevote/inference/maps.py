@@ -92,8 +92,8 @@ class TestMaps:
 def prepare_test(features: EdgeFeatures, shape: tuple[int, int], *, position_sigma: float,
                  orientation_kappa: float, edge_spacing: float = 2.0,
                  density_cap: float | None = None, chance_width: float | None = None,
-                 vote_bins: int = 16, density_bins: int = 16, vote_cutoff: float = 0.2
-                 ) -> TestMaps:
+                 vote_bins: int = 16, density_bins: int = 16, vote_cutoff: float = 0.2,
+                 region: tuple[int, int, int, int] | None = None) -> TestMaps:
     """Sort the test features by orientation and tabulate phi (Eq. 2).
 
     Parameters
@@ -128,13 +128,33 @@ def prepare_test(features: EdgeFeatures, shape: tuple[int, int], *, position_sig
     vote_cutoff : float, optional
         Pairs whose orientation kernel is below this do not vote (they still
         count in the exact score).
+    region : (int, int, int, int), optional
+        ``(u_lo, v_lo, u_hi, v_hi)``, pixels (inclusive): tabulate phi there
+        only, with the whole image's values, and read it there only (the
+        maps' window; 0 elsewhere). For a polish that cannot leave it, at a
+        fraction of the work. Narrow kernels (one cell a pixel) without
+        ``density_cap`` or ``chance_width`` only; the chance level stays the
+        whole image's (:func:`chance_of_points`).
 
     Returns
     -------
     TestMaps
+
+    Raises
+    ------
+    ValueError
+        If ``region`` is given with a wide kernel, a cap or a chance width, or
+        holds no pixel of the image.
     """
     h, w = shape
     k, gh, gw = map_grid(position_sigma, shape)
+    if region is not None:
+        if k != 1 or density_cap is not None or chance_width is not None:
+            raise ValueError("region: only for narrow maps without density_cap or chance_width")
+        region = (max(int(region[0]), 0), max(int(region[1]), 0),
+                  min(int(region[2]), w - 1), min(int(region[3]), h - 1))
+        if region[2] < region[0] or region[3] < region[1]:
+            raise ValueError(f"region: {region} holds no pixel of a {w} x {h} image")
     need = density_bins * gh * gw * 4
     if need > MAX_MAP_BYTES:
         raise ValueError(f"the test maps of a {w} x {h} image (scaled) take {need / 2**30:.1f} "
@@ -147,7 +167,25 @@ def prepare_test(features: EdgeFeatures, shape: tuple[int, int], *, position_sig
     # sqrt(2 pi) sigma / spacing, which is brought to 1.
     gain = np.sqrt(2.0 * np.pi) * position_sigma * edge_spacing
     density = orientation_planes(features.xy, features.theta, weight, centres, orientation_kappa,
-                                 shape, position_sigma)
+                                 shape, position_sigma, region=region)
+    lut = orientation_kernel(np.linspace(0.0, np.pi / 2, _LUT_SIZE), orientation_kappa)
+    # A region's maps are polished on, never voted on: no voters.
+    vote_xy, vote_theta, vote_weight = merge_voters(
+        features if region is None else features.select(np.zeros(0, dtype=np.int64)), weight, vote_bins,
+        VOTER_CELLS * vote_cell(position_sigma))
+    maps = TestMaps(xy=features.xy.copy(), theta=features.theta.copy(), vote_xy=vote_xy,
+                    vote_theta=vote_theta, vote_weight=vote_weight,
+                    density=density, grid=k, shape=(h, w),
+                    window=(0.0, 0.0, float(w - 1), float(h - 1)),
+                    lut=np.where(lut >= vote_cutoff, lut, 0.0),
+                    position_sigma=float(position_sigma))
+    if region is not None:
+        u0, v0, u1, v1 = region
+        # No cap: the gain alone, in single precision as _saturate applies it.
+        density[:, v0:v1 + 1, u0:u1 + 1] *= np.float32(gain)
+        return replace(maps, window=(float(u0), float(v0), float(u1), float(v1)),
+                       chance=chance_of_points(features.xy, features.theta, weight, centres,
+                                               orientation_kappa, shape, position_sigma) * gain)
     mean = np.empty(density.shape[1:], dtype=np.float32)
     # On the grid: the cap and the chance level apply to its cells, which the
     # readers interpolate (a cap between cells is the interpolated caps).
@@ -159,16 +197,7 @@ def prepare_test(features: EdgeFeatures, shape: tuple[int, int], *, position_sig
         local = chance_plane(mean, k, shape, chance_width)
         _subtract_plane(density, local)
         plane_sum -= local.astype(np.float64) * density_bins
-    lut = orientation_kernel(np.linspace(0.0, np.pi / 2, _LUT_SIZE), orientation_kappa)
-    vote_xy, vote_theta, vote_weight = merge_voters(
-        features, weight, vote_bins, VOTER_CELLS * vote_cell(position_sigma))
-    window = (0.0, 0.0, float(w - 1), float(h - 1))
-    return TestMaps(xy=features.xy.copy(), theta=features.theta.copy(), vote_xy=vote_xy,
-                    vote_theta=vote_theta, vote_weight=vote_weight,
-                    density=density, grid=k, shape=(h, w), window=window,
-                    lut=np.where(lut >= vote_cutoff, lut, 0.0),
-                    position_sigma=float(position_sigma),
-                    chance=window_mean(plane_sum, k, shape, window) / density_bins)
+    return replace(maps, chance=window_mean(plane_sum, k, shape, maps.window) / density_bins)
 
 
 # Two passes over the planes where numpy took five; saturate_reference is
@@ -397,19 +426,25 @@ def _splat_orientation(index, fx, fy, cos_t, sin_t, weight, centre, kappa, norm,
 
 def orientation_planes(xy: NDArray[np.float64], theta: NDArray[np.float64],
                        weight: NDArray[np.float64], centres: NDArray[np.float64], kappa: float,
-                       shape: tuple[int, int], sigma: float) -> NDArray[np.float32]:
+                       shape: tuple[int, int], sigma: float,
+                       region: tuple[int, int, int, int] | None = None) -> NDArray[np.float32]:
     """:func:`blurred_points` of the points' orientation strengths, one plane per centre.
 
     Plane ``b`` holds the points of mass ``weight * orientation_kernel(theta - centres[b],
     kappa)``; each plane's strengths are computed and splatted in one compiled pass, into
     one buffer the planes share (the same planes as :func:`blurred_points` of the
     strengths; writing all the planes point by point missed the cache on large grids).
+    With a ``region`` (``(u_lo, v_lo, u_hi, v_hi)`` inside the image, inclusive; narrow
+    kernels only) the planes hold the same values there and 0 elsewhere: the points within
+    the kernel's reach of it are blurred on a tile around it.
 
     Returns
     -------
     ndarray, shape (len(centres), GH, GW), float32
     """
     k, gh, gw = map_grid(sigma, shape)
+    if region is not None:
+        return _region_planes(xy, theta, weight, centres, kappa, shape, sigma, region)
     index, fx, fy = _places(xy, k, shape, gh, gw)
     theta = np.asarray(theta, dtype=np.float64)
     cos_t, sin_t = np.cos(2.0 * theta), np.sin(2.0 * theta)
@@ -424,6 +459,72 @@ def orientation_planes(xy: NDArray[np.float64], theta: NDArray[np.float64],
         cv2.GaussianBlur(splat.astype(np.float32).reshape(gh, gw), (0, 0), width, dst=out[b],
                          borderType=cv2.BORDER_CONSTANT)
     return out
+
+
+def _blur_taps(sigma: float) -> NDArray[np.float64]:
+    """The taps :func:`cv2.GaussianBlur` uses at width ``sigma`` on single precision (its
+    size: four sigma each way, odd)."""
+    size = int(np.rint(8.0 * sigma + 1.0)) | 1
+    return np.asarray(cv2.getGaussianKernel(size, sigma, cv2.CV_32F), dtype=np.float64).ravel()
+
+
+def _region_planes(xy: NDArray[np.float64], theta: NDArray[np.float64],
+                   weight: NDArray[np.float64], centres: NDArray[np.float64], kappa: float,
+                   shape: tuple[int, int], sigma: float, region: tuple[int, int, int, int]
+                   ) -> NDArray[np.float32]:
+    """:func:`orientation_planes` inside ``region`` only (narrow kernels).
+
+    The points are blurred on the tile of the region and the kernel's reach
+    around it (cut at the image's border, where the whole image's blur stops
+    too), so that the region's pixels sum the same taps of the same points.
+    The planes are zeros elsewhere, which the allocator leaves untouched.
+    """
+    h, w = shape
+    reach = len(_blur_taps(sigma)) // 2
+    u0, v0, u1, v1 = region
+    tu0, tv0 = max(u0 - reach, 0), max(v0 - reach, 0)
+    tu1, tv1 = min(u1 + reach, w - 1), min(v1 + reach, h - 1)
+    cols = np.clip(np.rint(xy[:, 0]).astype(np.int64), 0, w - 1)
+    rows = np.clip(np.rint(xy[:, 1]).astype(np.int64), 0, h - 1)
+    near = (cols >= tu0) & (cols <= tu1) & (rows >= tv0) & (rows <= tv1)
+    tile = orientation_planes(np.stack([cols[near] - tu0, rows[near] - tv0], axis=1).astype(
+        np.float64), np.asarray(theta)[near], np.asarray(weight)[near], centres, kappa,
+        (tv1 - tv0 + 1, tu1 - tu0 + 1), sigma)
+    out = np.zeros((len(centres), h, w), dtype=np.float32)
+    out[:, v0:v1 + 1, u0:u1 + 1] = tile[:, v0 - tv0:v1 - tv0 + 1, u0 - tu0:u1 - tu0 + 1]
+    return out
+
+
+def chance_of_points(xy: NDArray[np.float64], theta: NDArray[np.float64],
+                     weight: NDArray[np.float64], centres: NDArray[np.float64], kappa: float,
+                     shape: tuple[int, int], sigma: float) -> float:
+    """The mean over the image's pixels and planes of :func:`orientation_planes` (narrow
+    kernels), from the points alone.
+
+    The blur keeps each point's mass but for the taps past the image's
+    border: each point counts its orientation strengths times the share of
+    the kernel that lands inside the image (the maps' chance level without
+    tabulating the whole image).
+    """
+    h, w = shape
+    taps = _blur_taps(sigma)
+    reach = len(taps) // 2
+    # Share of the kernel inside [0, n) for a point at each pixel.
+    def inside(n: int) -> NDArray[np.float64]:
+        padded = np.convolve(np.ones(n), taps)
+        return np.asarray(padded[reach:reach + n])
+    cols = np.clip(np.rint(xy[:, 0]).astype(np.int64), 0, w - 1)
+    rows = np.clip(np.rint(xy[:, 1]).astype(np.int64), 0, h - 1)
+    theta = np.asarray(theta, dtype=np.float64)
+    centres = np.asarray(centres, dtype=np.float64)
+    # cos 2(theta - c) from the angles' own cosines and sines, as the splat has it.
+    cos_c = np.outer(np.cos(2.0 * theta), np.cos(2.0 * centres))
+    cos_c += np.outer(np.sin(2.0 * theta), np.sin(2.0 * centres))
+    cos_c -= 1.0
+    cos_c *= kappa
+    strength = np.exp(cos_c, out=cos_c).sum(axis=1)
+    mass = np.asarray(weight) * inside(w)[cols] * inside(h)[rows]
+    return float(mass @ strength) / (len(centres) * h * w)
 
 
 def smooth(plane: NDArray[np.float32], sigma: float, border: int) -> NDArray[np.float32]:

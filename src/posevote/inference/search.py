@@ -214,13 +214,14 @@ def search_sigma(model: PoseModel, setup: SearchSetup) -> float:
 
 
 def image_maps(features: EdgeFeatures, shape: tuple[int, int], setup: SearchSetup, *,
-               sigma: float | None = None, scale: float = 1.0, search: bool = False
-               ) -> TestMaps:
+               sigma: float | None = None, scale: float = 1.0, search: bool = False,
+               region: tuple[int, int, int, int] | None = None) -> TestMaps:
     """The test image tabulated at kernel width ``sigma`` (default: the narrow one).
 
     ``density_cap`` and the local chance level apply to the search's maps
     only: the narrow maps of the refinements keep the unsaturated density,
-    whose ridges give the precise alignment.
+    whose ridges give the precise alignment. ``region`` tabulates a narrow
+    map only there (:func:`posevote.inference.maps.prepare_test`).
     """
     width = setup.position_sigma if sigma is None else sigma
     local = search and setup.options.chance_correction
@@ -228,7 +229,7 @@ def image_maps(features: EdgeFeatures, shape: tuple[int, int], setup: SearchSetu
                         orientation_kappa=ORIENTATION_KAPPA,
                         edge_spacing=setup.edge_spacing / scale,
                         density_cap=setup.options.density_cap if search else None,
-                        chance_width=CHANCE_WIDTH * width if local else None)
+                        chance_width=CHANCE_WIDTH * width if local else None, region=region)
 
 
 def scale_maps(features: EdgeFeatures, shape: tuple[int, int], setup: SearchSetup, *,

@@ -151,7 +151,7 @@ def instance_refine(instance: int, hypothesis: Hypothesis, full: PoseModel,
     v = int(np.argmax(probes.score.max(axis=(1, 2))))
     refined = refine_mode(probes, v, fit=fitting, radius_steps=FIT_RADIUS_STEPS)
     if local:
-        refined = local_refine(probes, v, refined, model, fine, setup, fitting=fitting)
+        refined = local_refine(probes, v, refined, model, setup, fitting=fitting, maps=fine)
     return refined
 
 

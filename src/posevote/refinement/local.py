@@ -10,7 +10,6 @@ features, which is what puts the object's position within a pixel or two.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from dataclasses import replace
 from typing import Any
 
@@ -18,11 +17,13 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
-from posevote.inference.maps import TestMaps
+from posevote.features.edges import EdgeFeatures
+from posevote.inference.maps import TestMaps, scaled_features
 from posevote.inference.search import (
     ProbeSet,
     SearchSetup,
     ViewpointFeatures,
+    image_maps,
     viewpoint_features,
 )
 from posevote.inference.voting import (
@@ -43,10 +44,13 @@ from posevote.refinement.fitting import (
 )
 from posevote.results import Hypothesis
 
+#: The polish moves the translation by at most this many pixels (each way).
+POLISH_SHIFT = 8.0
+
 
 def polish_pose(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps, *,
                 viewpoint_kappa: float, use_weights: bool = True, k1_cutoff: float = 0.1,
-                max_shift: float = 8.0, scale_bounds: tuple[float, float] | None = None,
+                max_shift: float = POLISH_SHIFT, scale_bounds: tuple[float, float] | None = None,
                 max_features: int | None = None) -> Hypothesis:
     """Maximise the exact p(w) around a hypothesis over (alpha, log s, u, v).
 
@@ -258,8 +262,7 @@ def in_frame(pose: Hypothesis, factor: float) -> Hypothesis:
 
 
 def rescale_anchor(probes: ProbeSet, viewpoint: int, model: PoseModel,
-                   scale_maps: Sequence[TestMaps], *, viewpoint_kappa: float,
-                   use_weights: bool = True, k1_cutoff: float = 0.1
+                   features: EdgeFeatures, shape: tuple[int, int], setup: SearchSetup
                    ) -> tuple[Hypothesis, int] | None:
     """Choose a mode's scale again with the narrow kernel in object units (beyond the paper).
 
@@ -270,7 +273,9 @@ def rescale_anchor(probes: ProbeSet, viewpoint: int, model: PoseModel,
     inner detail, and under occlusion a smaller model fitted to the visible
     part then scores as well as the right one; the narrow kernel in object
     units tells them apart without favouring small scales (a kernel fixed
-    in pixels is relatively wider on a small model).
+    in pixels is relatively wider on a small model). Each scale's maps are
+    tabulated only where its polish can read them (the probe's reach), with
+    the whole image's values and chance level.
 
     Parameters
     ----------
@@ -280,11 +285,12 @@ def rescale_anchor(probes: ProbeSet, viewpoint: int, model: PoseModel,
         The mode's best viewpoint.
     model : PoseModel
         Training pairs.
-    scale_maps : sequence of TestMaps
-        For every probed scale, the test features divided by it, tabulated
-        with the narrow kernel (:func:`posevote.inference.maps.scaled_features`).
-    viewpoint_kappa, use_weights, k1_cutoff
-        As in :func:`polish_pose`.
+    features : EdgeFeatures
+        The test features, image pixels.
+    shape : (int, int)
+        The image's shape.
+    setup : SearchSetup
+        The search's setup (narrow kernel, pose kernel, weights).
 
     Returns
     -------
@@ -292,26 +298,39 @@ def rescale_anchor(probes: ProbeSet, viewpoint: int, model: PoseModel,
         The polished pose in image coordinates and the index of its scale;
         None if no scale has a probe with a positive score.
     """
-    if len(scale_maps) != len(probes.scale):
-        raise ValueError(f"need one TestMaps per scale: {len(scale_maps)} for "
-                         f"{len(probes.scale)} scales")
+    kw = _score_options(setup)
     half = 0.5 * float(np.median(np.diff(np.log(probes.scale)))) if len(probes.scale) > 1 else 0.05
+    feats = viewpoint_features(model, float(probes.azimuth[viewpoint]),
+                               float(probes.elevation[viewpoint]), **kw)
+    # How far from its start the polish can read: its shift, the features'
+    # reach at the largest scale it may take, and the bilinear read's pixel.
+    reach = POLISH_SHIFT + float(np.exp(half)) * float(
+        np.sqrt(np.max(np.sum(feats.xy**2, axis=1), initial=0.0))) + 2.0
     best: tuple[float, Hypothesis, int] | None = None
-    for s, maps in enumerate(scale_maps):
+    for s, factor in enumerate(probes.scale.tolist()):
         a = int(np.argmax(probes.score[viewpoint, :, s]))
         if probes.score[viewpoint, a, s] <= 0:
             continue
-        factor = float(probes.scale[s])
         probe = probe_pose(probes, viewpoint, a, s)
-        polished = polish_pose(in_frame(probe, factor), model, maps,
-                               viewpoint_kappa=viewpoint_kappa, use_weights=use_weights,
-                               k1_cutoff=k1_cutoff,
+        start = in_frame(probe, factor)
+        u, v = start.position
+        region = (int(np.floor(u - reach)), int(np.floor(v - reach)),
+                  int(np.ceil(u + reach)), int(np.ceil(v + reach)))
+        maps = image_maps(*scaled_features(features, shape, factor), setup, scale=factor,
+                          region=region)
+        polished = polish_pose(start, model, maps, **kw,
                                scale_bounds=(float(np.exp(-half)), float(np.exp(half))))
         chance = min(maps.chance, 0.99)
         value = (polished.score - chance) / (1.0 - chance)
         if best is None or value > best[0]:
             best = (value, replace(in_frame(polished, 1.0 / factor), score=probe.score), s)
     return None if best is None else (best[1], best[2])
+
+
+def _score_options(setup: SearchSetup) -> dict[str, Any]:
+    """The pose kernel and weights the polishes score with."""
+    return {"viewpoint_kappa": setup.viewpoint_kappa, "use_weights": setup.use_weights,
+            "k1_cutoff": K1_CUTOFF}
 
 
 def start_near(probes: ProbeSet, viewpoint: int, anchor: Hypothesis) -> Hypothesis:
@@ -432,17 +451,19 @@ REFINE_SCALE_STEPS = 1.0
 
 
 def local_refine(probes: ProbeSet, viewpoint: int, hypothesis: Hypothesis, model: PoseModel,
-                 maps: TestMaps, setup: SearchSetup, *, fitting: bool,
-                 scale_maps: Sequence[TestMaps] | None = None) -> Hypothesis:
+                 setup: SearchSetup, *, fitting: bool, features: EdgeFeatures | None = None,
+                 shape: tuple[int, int] | None = None, maps: TestMaps | None = None,
+                 object_units: bool = False) -> Hypothesis:
     """The local refinement of one mode (beyond the paper).
 
     With ``fitting``, the profile likelihood around the mode's best
-    viewpoint is fitted (:func:`profile_refine`); with per-scale narrow
-    maps (``scale_maps``, object units) the mode's scale is first chosen
-    again among the search's scales (:func:`rescale_anchor`): the search's
-    wide kernel blurs the object's inner detail, so that under occlusion a
-    model shrunk onto the visible part scores as well as the right one.
-    Without ``fitting`` the mode's pose is only polished (:func:`polish_pose`).
+    viewpoint is fitted (:func:`profile_refine`); with ``object_units`` the
+    mode's scale is first chosen again among the search's scales on narrow
+    maps in object units (:func:`rescale_anchor`), and the profile is fitted
+    on that scale's: the search's wide kernel blurs the object's inner
+    detail, so that under occlusion a model shrunk onto the visible part
+    scores as well as the right one. Without ``fitting`` the mode's pose is
+    only polished (:func:`polish_pose`).
 
     Parameters
     ----------
@@ -453,29 +474,51 @@ def local_refine(probes: ProbeSet, viewpoint: int, hypothesis: Hypothesis, model
     hypothesis : Hypothesis
         The mode's pose (fitted or not).
     model : PoseModel
-    maps : TestMaps
-        The test image with the narrow kernel, pixels.
     setup : SearchSetup
         The search's setup (kernel, weights, scale grid).
     fitting : bool
         Fit the viewpoint (else polish only).
-    scale_maps : sequence of TestMaps, optional
-        Narrow maps per searched scale (object units).
+    features : EdgeFeatures, optional
+        The test features, image pixels; needed unless ``maps`` is given and
+        ``object_units`` is not.
+    shape : (int, int), optional
+        The image's shape, with ``features``.
+    maps : TestMaps, optional
+        The test image with the narrow kernel, pixels, if already made
+        (else made from ``features`` when needed).
+    object_units : bool, optional
+        With ``fitting``, choose the scale again in object units.
 
     Returns
     -------
     Hypothesis
+
+    Raises
+    ------
+    ValueError
+        If the maps it needs can be neither taken nor made.
     """
-    kw: dict[str, Any] = {"viewpoint_kappa": setup.viewpoint_kappa,
-                          "use_weights": setup.use_weights, "k1_cutoff": K1_CUTOFF}
+    kw = _score_options(setup)
+
+    def pixel_maps() -> TestMaps:
+        if maps is not None:
+            return maps
+        if features is None or shape is None:
+            raise ValueError("local_refine needs the narrow maps or the features and shape")
+        return image_maps(features, shape, setup)
+
     if not fitting:
-        return polish_pose(hypothesis, model, maps, **kw)
+        return polish_pose(hypothesis, model, pixel_maps(), **kw)
     margin = REFINE_SCALE_STEPS * max(setup.options.scale_step(), 0.05)
-    if scale_maps is not None and (
-            chosen := rescale_anchor(probes, viewpoint, model, list(scale_maps), **kw)):
-        anchor, s = chosen
-        return profile_refine(probes, viewpoint, model, scale_maps[s], scale_margin=margin,
-                              radius_steps=FIT_RADIUS_STEPS, anchor=anchor,
-                              frame_scale=float(probes.scale[s]), **kw)
-    return profile_refine(probes, viewpoint, model, maps, scale_margin=margin,
+    if object_units:
+        if features is None or shape is None:
+            raise ValueError("local_refine in object units needs the features and shape")
+        if chosen := rescale_anchor(probes, viewpoint, model, features, shape, setup):
+            anchor, s = chosen
+            factor = float(probes.scale[s])
+            scaled = image_maps(*scaled_features(features, shape, factor), setup, scale=factor)
+            return profile_refine(probes, viewpoint, model, scaled, scale_margin=margin,
+                                  radius_steps=FIT_RADIUS_STEPS, anchor=anchor,
+                                  frame_scale=factor, **kw)
+    return profile_refine(probes, viewpoint, model, pixel_maps(), scale_margin=margin,
                           radius_steps=FIT_RADIUS_STEPS, **kw)
