@@ -313,11 +313,12 @@ def rescale_anchor(probes: ProbeSet, viewpoint: int, model: PoseModel,
             continue
         probe = probe_pose(probes, viewpoint, a, s)
         start = in_frame(probe, factor)
-        u, v = start.position
+        scaled, (h, w) = scaled_features(features, shape, factor)
+        # Clamped to meet the image: a polish that reads only past it scores 0 either way.
+        u, v = np.clip(start.position, 0.0, (w - 1, h - 1))
         region = (int(np.floor(u - reach)), int(np.floor(v - reach)),
                   int(np.ceil(u + reach)), int(np.ceil(v + reach)))
-        maps = image_maps(*scaled_features(features, shape, factor), setup, scale=factor,
-                          region=region)
+        maps = image_maps(scaled, (h, w), setup, scale=factor, region=region)
         polished = polish_pose(start, model, maps, **kw,
                                scale_bounds=(float(np.exp(-half)), float(np.exp(half))))
         chance = min(maps.chance, 0.99)
