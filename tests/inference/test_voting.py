@@ -60,7 +60,8 @@ def test_votes_kernel_matches_reference(scene, table):
 
 
 @pytest.mark.parametrize("dtype", [np.float64, np.float32])
-@pytest.mark.parametrize(("shape", "width"), [((51, 76), 1.5), ((7, 9), 2.0), ((40, 3), 0.8)])
+@pytest.mark.parametrize(("shape", "width"), [((51, 76), 1.5), ((7, 9), 2.0), ((40, 3), 0.8),
+                                              ((5, 4), 2.0), ((1, 9), 3.3)])
 def test_vote_blur_matches_reference(shape, width, dtype):
     # Double precision as numpy's sums; single, as the search blurs its votes.
     acc = np.random.default_rng(1).random(shape)
