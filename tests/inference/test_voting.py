@@ -7,6 +7,7 @@ from posevote.features import EdgeFeatures
 from posevote.inference.maps import prepare_test
 from posevote.inference.voting import (
     POLISHED_STEPS,
+    _argmax_nonnegative,
     _blur,
     accumulate_votes,
     accumulate_votes_reference,
@@ -74,6 +75,20 @@ def test_vote_blur_matches_reference(shape, width, dtype):
     else:
         np.testing.assert_allclose(acc, want, rtol=1e-6, atol=1e-7)
 
+
+
+@pytest.mark.parametrize("shape", [(126, 126), (7, 9), (1, 1)])
+def test_the_vote_grids_argmax_is_numpys(shape):
+    # Sparse grids with ties (the first of them wins), as blurred and suppressed votes are.
+    rng = np.random.default_rng(4)
+    for _ in range(50):
+        grid = (rng.random(shape) * (rng.random(shape) < 0.4)).astype(np.float32)
+        grid[rng.integers(shape[0]), : max(1, shape[1] // 3)] = grid.max()
+        assert _argmax_nonnegative(grid) == np.argmax(grid)
+    tiny = np.full(shape, np.float32(1e-40))  # subnormals order as integers too
+    tiny.flat[-1] = np.float32(2e-40)
+    assert _argmax_nonnegative(tiny) == np.argmax(tiny)
+    assert _argmax_nonnegative(np.zeros(shape, dtype=np.float32)) == 0
 
 @pytest.mark.parametrize(("sigma", "block"), [(2.0, 1), (7.0, 3), (9.5, 4)])
 @pytest.mark.parametrize("t", [(70.0, 50.0), (71.3, 48.6), (5.0, 5.0), (118.5, 98.7)])

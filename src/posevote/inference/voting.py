@@ -328,6 +328,26 @@ def _blur(acc, tmp, taps):  # pragma: no cover - compiled
             _add_scaled(a, tmp[row + j], taps[j + r])
 
 
+@numba.njit(cache=True, nogil=True)
+def _argmax_nonnegative(grid):  # pragma: no cover - compiled
+    """``np.argmax`` of a contiguous single-precision grid of non-negative values (flat).
+
+    Non-negative floats order as their bit patterns do as integers, and an
+    integer maximum is a loop the compiler vectorises (a float's, with its
+    NaN rules, it does not): a sixth of ``np.argmax``'s time on a vote grid.
+    The first cell holding the maximum is returned, as ``np.argmax`` does.
+    """
+    bits = grid.reshape(-1).view(np.int32)
+    top = np.int32(0)
+    for i in range(bits.shape[0]):
+        b = bits[i]
+        top = b if b > top else top
+    for i in range(bits.shape[0]):
+        if bits[i] == top:
+            return i
+    return 0
+
+
 def blur_reference(acc: NDArray[np.float64], taps: NDArray[np.float64]) -> NDArray[np.float64]:
     """:func:`_blur` in numpy, a copy (for tests)."""
     r = len(taps) // 2
@@ -528,7 +548,7 @@ def _search_kernel(train_xy, train_theta, train_w, alphas, scales, test_xy, test
             best_r = -1
             best_c = -1
             for _ in range(n_candidates):
-                flat = np.argmax(acc)
+                flat = _argmax_nonnegative(acc)
                 r = flat // gw
                 c = flat % gw
                 if acc[r, c] <= 0.0:
