@@ -68,12 +68,17 @@ def test_vote_blur_matches_reference(shape, width, dtype):
     acc = np.random.default_rng(1).random(shape)
     taps = blur_taps(width)
     want = blur_reference(acc, taps)
+    votes = acc.copy()
     acc = acc.astype(dtype)
-    _blur(acc, np.empty(shape, dtype=dtype), taps.astype(dtype))
+    _blur(acc, acc, np.empty(shape, dtype=dtype), taps.astype(dtype))
     if dtype == np.float64:
         np.testing.assert_allclose(acc, want, rtol=1e-12, atol=1e-15)
     else:
         np.testing.assert_allclose(acc, want, rtol=1e-6, atol=1e-7)
+    # From double-precision votes into another grid, as the search blurs them.
+    out = np.full(shape, np.nan, dtype=dtype)
+    _blur(votes, out, np.empty(shape, dtype=dtype), taps.astype(dtype))
+    np.testing.assert_array_equal(out, acc)
 
 
 

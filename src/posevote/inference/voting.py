@@ -288,8 +288,12 @@ def _add_scaled(dst, src, weight):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True)
-def _blur(acc, tmp, taps):  # pragma: no cover - compiled
-    """Separable smoothing of ``acc`` in place with the symmetric kernel ``taps`` (0 outside).
+def _blur(src, acc, tmp, taps):  # pragma: no cover - compiled
+    """Separable smoothing of ``src`` into ``acc`` with the symmetric kernel ``taps`` (0 outside).
+
+    ``src`` is read in ``acc``'s precision, all of it before ``acc`` is
+    written (it may be ``acc`` itself): the search blurs its double-precision
+    votes into a single-precision grid without a copy between.
 
     The taps are added along whole rows (contiguous, no branch per tap),
     four to a pass over the row and in their order, so that every cell sums
@@ -301,7 +305,7 @@ def _blur(acc, tmp, taps):  # pragma: no cover - compiled
     r = n // 2
     pad = np.zeros(gw + 2 * r, dtype=acc.dtype)
     for row in range(gh):
-        pad[r:r + gw] = acc[row]
+        pad[r:r + gw] = src[row]
         t = tmp[row]
         t[:] = 0.0
         k = 0
@@ -539,8 +543,7 @@ def _search_kernel(train_xy, train_theta, train_w, alphas, scales, test_xy, test
             votes[:, :] = 0.0
             accumulate_votes(voter_xy, voter_theta, voter_w, alphas[a], scales[s], test_xy,
                              test_theta, test_w, lut, cell, votes)
-            acc[:, :] = votes
-            _blur(acc, tmp, taps)
+            _blur(votes, acc, tmp, taps)
             # The vote peaks are ranked by the exact score at their cell, and
             # only the best of them is polished (hill-climbing every peak
             # cost a quarter of the search for the same winner, nearly always).
