@@ -169,10 +169,12 @@ def prepare_test(features: EdgeFeatures, shape: tuple[int, int], *, position_sig
     density = orientation_planes(features.xy, features.theta, weight, centres, orientation_kappa,
                                  shape, position_sigma, region=region)
     lut = orientation_kernel(np.linspace(0.0, np.pi / 2, _LUT_SIZE), orientation_kappa)
-    # A region's maps are polished on, never voted on: no voters.
-    vote_xy, vote_theta, vote_weight = merge_voters(
-        features if region is None else features.select(np.zeros(0, dtype=np.int64)), weight, vote_bins,
-        VOTER_CELLS * vote_cell(position_sigma))
+    if region is None:
+        vote_xy, vote_theta, vote_weight = merge_voters(
+            features, weight, vote_bins, VOTER_CELLS * vote_cell(position_sigma))
+    else:
+        # A region's maps are polished on, never voted on: no voters.
+        vote_xy, vote_theta, vote_weight = np.zeros((0, 2)), np.zeros(0), np.zeros(0)
     maps = TestMaps(xy=features.xy.copy(), theta=features.theta.copy(), vote_xy=vote_xy,
                     vote_theta=vote_theta, vote_weight=vote_weight,
                     density=density, grid=k, shape=(h, w),
@@ -484,8 +486,7 @@ def _region_planes(xy: NDArray[np.float64], theta: NDArray[np.float64],
     u0, v0, u1, v1 = region
     tu0, tv0 = max(u0 - reach, 0), max(v0 - reach, 0)
     tu1, tv1 = min(u1 + reach, w - 1), min(v1 + reach, h - 1)
-    cols = np.clip(np.rint(xy[:, 0]).astype(np.int64), 0, w - 1)
-    rows = np.clip(np.rint(xy[:, 1]).astype(np.int64), 0, h - 1)
+    rows, cols = np.divmod(_places(xy, 1, shape, h, w)[0], w)
     near = (cols >= tu0) & (cols <= tu1) & (rows >= tv0) & (rows <= tv1)
     tile = orientation_planes(np.stack([cols[near] - tu0, rows[near] - tv0], axis=1).astype(
         np.float64), np.asarray(theta)[near], np.asarray(weight)[near], centres, kappa,
@@ -513,8 +514,8 @@ def chance_of_points(xy: NDArray[np.float64], theta: NDArray[np.float64],
     def inside(n: int) -> NDArray[np.float64]:
         padded = np.convolve(np.ones(n), taps)
         return np.asarray(padded[reach:reach + n])
-    cols = np.clip(np.rint(xy[:, 0]).astype(np.int64), 0, w - 1)
-    rows = np.clip(np.rint(xy[:, 1]).astype(np.int64), 0, h - 1)
+    # The pixels the splat rounds the points to.
+    rows, cols = np.divmod(_places(xy, 1, shape, h, w)[0], w)
     theta = np.asarray(theta, dtype=np.float64)
     centres = np.asarray(centres, dtype=np.float64)
     # cos 2(theta - c) from the angles' own cosines and sines, as the splat has it.
