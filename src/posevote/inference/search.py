@@ -153,7 +153,13 @@ class SearchOptions(Options):
                        self.inplane_step_deg)
 
     def grid(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """The in-plane angles (radians, centred on the range) and scales searched."""
+        """The in-plane angles (radians, centred on the range) and scales searched (copies)."""
+        inplanes, scales = self._grid
+        return inplanes.copy(), scales.copy()
+
+    @cached_property
+    def _grid(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        # Worked out once per options: a search asks for it several times an image.
         a_lo, a_hi = np.radians(self.inplane_range_deg)
         step = np.radians(self.inplane_step_deg)
         n_a = int(np.floor((a_hi - a_lo) / step + 1e-9)) + 1
