@@ -377,8 +377,12 @@ def test_presets_build_and_are_recorded(synthetic_training, tmp_path):
 
 def test_two_objects_in_one_image(fitted_estimator, draw, tmp_path):
     canvas = np.hstack([draw(np.radians(100)), draw(np.radians(250))])
-    found = fitted_estimator.estimate_objects(canvas, 3)
+    found = fitted_estimator.estimate_objects(canvas, 2)
     assert len(found) == 2
+    # A third search reads only the leftover edges: nothing, or far below the objects.
+    more = fitted_estimator.estimate_objects(canvas, 3)
+    assert [r.best for r in more[:2]] == [f.best for f in found]
+    assert all(r.best.score < 0.2 * min(f.best.score for f in found) for r in more[2:])
     left, right = sorted(found, key=lambda r: r.best.position[0])
     assert left.best.position[0] < 128 <= right.best.position[0]
     assert abs(left.best.azimuth_deg - 100) < 15 and abs(right.best.azimuth_deg - 250) < 15

@@ -44,7 +44,7 @@ from posevote.presets import get_preset, nearest_preset
 from posevote.refinement.appearance import appearance_refine
 from posevote.refinement.fitting import FIT_RADIUS_STEPS, find_modes, refine_mode
 from posevote.refinement.instance import RecognitionOptions, recognize
-from posevote.refinement.local import local_refine
+from posevote.refinement.local import local_refine, rescale_mode
 from posevote.refinement.probability import scored_viewpoints, with_probabilities
 from posevote.results import PoseEstimate
 
@@ -355,6 +355,10 @@ class PoseEstimator(GroupedParams):
                 for v in modes]
         recognizing = self.recognition is not None and len(model.instance_names) > 1
         fine = image_maps(feats, shape, setup) if hyps and recognizing else None
+        if not self.local_refinement and self.appearance is None and hyps:
+            # The fit reads the scale a few percent short; the narrow kernel does not.
+            hyps[0] = rescale_mode(hyps[0], model, fine if fine is not None else
+                                   image_maps(feats, shape, setup), setup)
         if self.local_refinement and hyps:
             # In object units, at the probes' own scales (after the verification,
             # only those near its box).

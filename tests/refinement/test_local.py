@@ -7,7 +7,13 @@ from posevote.features.edges import extract_edges
 from posevote.inference.search import SearchOptions, image_maps, scale_maps
 from posevote.model.kernels import K1_CUTOFF
 from posevote.refinement import find_modes, polish_pose, refine_mode
-from posevote.refinement.local import in_frame, local_refine, probe_pose, profile_refine
+from posevote.refinement.local import (
+    in_frame,
+    local_refine,
+    probe_pose,
+    profile_refine,
+    rescale_mode,
+)
 
 
 @pytest.fixture(scope="module")
@@ -36,6 +42,23 @@ def test_polish_recovers_a_perturbed_pose(scene):
     assert np.hypot(again.position[0] - good.position[0],
                     again.position[1] - good.position[1]) < 1.5
     assert again.scale == pytest.approx(good.scale, rel=0.02)
+
+
+def test_rescale_mode_moves_only_the_scale_and_position(scene):
+    est, probes, fine, centre = scene
+    fitted = refine_mode(probes, find_modes(probes)[0], fit=True)
+    good = polish_pose(fitted, est.model_, fine, turn=False, viewpoint_kappa=est.viewpoint_kappa_,
+                       k1_cutoff=K1_CUTOFF)
+    # A fit that read the scale 5% short and the position 2 px off.
+    short = replace(fitted, scale=good.scale * 0.95,
+                    position=(good.position[0] + 2.0, good.position[1] - 1.0))
+    out = rescale_mode(short, est.model_, fine, est.setup())
+    assert out.scale == pytest.approx(good.scale, rel=0.01)
+    assert np.hypot(out.position[0] - good.position[0], out.position[1] - good.position[1]) < 1.0
+    # The angles and the score are the fit's (min_score is calibrated on it).
+    assert (out.azimuth, out.elevation, out.inplane, out.score) == (
+        short.azimuth, short.elevation, short.inplane, short.score)
+    assert out.box != short.box
 
 
 def test_polish_on_a_subset_of_the_features_lands_near_the_full_polish(scene):
@@ -191,3 +214,12 @@ def test_compass_search_kernel_agrees_with_reference():
     z, *_ = _compass_search(maps.density, maps.frame, model_xy, model_theta, weight, start, unit,
                             tight, 8.0)
     assert abs(start[1] + z[1] * unit[1]) <= 0.01 + 1e-12 and np.all(np.abs(z) <= 8.0)
+    # A unit of 0 holds that axis, in both.
+    held = unit * [0.0, 1.0, 1.0, 1.0]
+    z, best, _ = _compass_search(maps.density, maps.frame, model_xy, model_theta, weight, start,
+                                 held, bounds, 8.0)
+    z_ref, best_ref, _ = compass_search_reference(maps, model_xy, model_theta, weight, start,
+                                                  held, bounds, 8.0)
+    assert z[0] == 0.0 and z_ref[0] == 0.0
+    np.testing.assert_allclose(z, z_ref, atol=1e-9)
+    assert best == pytest.approx(best_ref, rel=1e-9) and best > initial
