@@ -138,6 +138,11 @@ def test_a_search_near_a_pose_probes_the_scales_near_its_own(fitted_estimator, d
     # Scales without maps are not probed.
     some = [m if k != 3 else None for k, m in enumerate(maps)]
     assert probe(est.model_, some, setup, near=near).scale.tolist() == grid[[1, 2]].tolist()
+    # A pose beside the scales that have maps probes those (it used to fail).
+    far = [m if k == 5 else None for k, m in enumerate(maps)]
+    assert probe(est.model_, far, setup, near=near).scale.tolist() == [grid[5]]
+    with pytest.raises(ValueError, match="no maps for the scales to probe"):
+        probe(est.model_, [None] * len(maps), setup, near=near)
     with pytest.raises(ValueError, match="one TestMaps \\(or None\\) per scale"):
         probe(est.model_, maps[:2], setup)
 

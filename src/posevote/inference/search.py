@@ -651,6 +651,9 @@ def probe(model: PoseModel, maps: TestMaps | Sequence[TestMaps | None], setup: S
                              f"{len(scales)} scales")
         keep = np.arange(len(scales)) if near is None else near_scales(scales, near.scale, opts)
         keep = np.array([k for k in keep if maps[k] is not None], dtype=np.intp)
+        if len(keep) == 0 and near is not None:
+            # A pose beside the scales that have maps (a verification's few): those.
+            keep = np.array([k for k, m in enumerate(maps) if m is not None], dtype=np.intp)
         if len(keep) == 0:
             raise ValueError("no maps for the scales to probe")
         scales = scales[keep]
