@@ -355,10 +355,11 @@ class PoseEstimator(GroupedParams):
                 for v in modes]
         recognizing = self.recognition is not None and len(model.instance_names) > 1
         fine = image_maps(feats, shape, setup) if hyps and recognizing else None
-        if not self.local_refinement and self.appearance is None and hyps:
-            # The fit reads the scale a few percent short; the narrow kernel does not.
-            hyps[0] = rescale_mode(hyps[0], model, fine if fine is not None else
-                                   image_maps(feats, shape, setup), setup)
+        if not self.local_refinement and self.appearance is None and hyps \
+                and len(model.instance_names) <= 1:
+            # The fit reads the scale a few percent short; the narrow kernel does not
+            # (one instance: a category's pooled views pull it onto inner edges).
+            hyps[0] = rescale_mode(hyps[0], model, image_maps(feats, shape, setup), setup)
         if self.local_refinement and hyps:
             # In object units, at the probes' own scales (after the verification,
             # only those near its box).
