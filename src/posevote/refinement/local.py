@@ -541,6 +541,23 @@ def rescale_mode(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps,
     is slower toward small scales, so it reads a few percent short; the narrow
     kernel's peak does not (docs/METHOD-NOTES.md). The score stays the fit's, on
     which ``min_score`` and the modes' probabilities are calibrated.
+
+    Parameters
+    ----------
+    hypothesis : Hypothesis
+        The fitted mode.
+    model : PoseModel
+        A one-instance model (a category's pooled views pull the narrow
+        kernel onto one instance's inner edges).
+    maps : TestMaps
+        The test image with the narrow kernel, pixels.
+    setup : SearchSetup
+        The search's setup (pose kernel, weights).
+
+    Returns
+    -------
+    Hypothesis
+        ``hypothesis`` with the polished scale, position and box.
     """
     polished = polish_pose(hypothesis, model, maps, turn=False, **_score_options(setup))
     return replace(hypothesis, scale=polished.scale, position=polished.position,
