@@ -10,7 +10,12 @@ rigid transform ``T_cam_obj`` (frames as in :mod:`posevote.geometry`):
   the object's height in metres (``object_height_m``, learnt at training)
   and ``R`` the model's reference box height in pixels (an object at scale
   1 appears ``R`` pixels high);
-* ``t_cam_obj`` is the reference point's ray scaled to that depth.
+* ``t_cam_obj`` is the reference point's ray scaled to that depth, or,
+  when training gave the object's origin in each view (``fit(...,
+  origins=)``; BOP scenes do), the ray through the origin's image: each
+  view's offset of the origin from the box centre, averaged over the views
+  near the estimated viewpoint as the box is, turned and scaled with the
+  hypothesis (:func:`posevote.model.density.origin_offset`).
 
 ``H`` comes from the training set: a known object height, or the training
 camera with each training view's distance (``distance_m``), as the median
@@ -172,26 +177,36 @@ def check_object_height(value: Any) -> float | None:
 
 
 def place(hypothesis: Hypothesis, camera: Camera, *, reference_size_px: float,
-          object_height_m: float | None) -> Hypothesis:
-    """The hypothesis with ``R_cam_obj`` and, given the object's height, ``t_cam_obj``."""
+          object_height_m: float | None, anchor: tuple[float, float] | None = None
+          ) -> Hypothesis:
+    """The hypothesis with ``R_cam_obj`` and, given the object's height, ``t_cam_obj``.
+
+    ``t_cam_obj`` is the ray through ``anchor`` (the image of the object's
+    origin, when the model knows it; default: the box centre, ``position``)
+    at the object's depth.
+    """
     R = rotation_from_pose(hypothesis.azimuth, hypothesis.elevation, hypothesis.inplane)
     t: tuple[float, float, float] | None = None
     if object_height_m is not None:
         depth = camera.fy * object_height_m / (hypothesis.scale * reference_size_px)
-        u, v = hypothesis.position
+        u, v = hypothesis.position if anchor is None else anchor
         t = ((u - camera.cx) / camera.fx * depth, (v - camera.cy) / camera.fy * depth, depth)
     return dataclasses.replace(hypothesis, R_cam_obj=_rows(R), t_cam_obj=t)
 
 
 def place_all(hypotheses: Sequence[Hypothesis], camera: Camera | None, *,
-              reference_size_px: float, object_height_m: float | None) -> list[Hypothesis]:
-    """:func:`place` for every hypothesis (unchanged without a camera)."""
+              reference_size_px: float, object_height_m: float | None,
+              anchors: Sequence[tuple[float, float] | None] | None = None) -> list[Hypothesis]:
+    """:func:`place` for every hypothesis, each with its ``anchor`` (unchanged without a
+    camera)."""
     if camera is None:
         return list(hypotheses)
     if not isinstance(camera, Camera):
         raise TypeError(f"camera must be a posevote.camera.Camera, got {type(camera).__name__}")
+    points = [None] * len(hypotheses) if anchors is None else list(anchors)
     return [place(h, camera, reference_size_px=reference_size_px,
-                  object_height_m=object_height_m) for h in hypotheses]
+                  object_height_m=object_height_m, anchor=a)
+            for h, a in zip(hypotheses, points, strict=True)]
 
 
 def _rows(R: NDArray[np.float64]) -> tuple[tuple[float, float, float], ...]:

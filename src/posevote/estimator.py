@@ -21,7 +21,7 @@ from posevote._options import GroupedParams, Options, params_from_json, params_t
 from posevote.camera import Camera, place_all
 from posevote.data.images import load_image
 from posevote.features.edges import EdgeFeatures, EdgeOptions, extract_edges, without_box
-from posevote.geometry import box_iou
+from posevote.geometry import box_iou, rotate_points
 from posevote.inference.coverage import rerank_by_coverage
 from posevote.inference.maps import TestMaps
 from posevote.inference.search import (
@@ -36,8 +36,8 @@ from posevote.inference.search import (
 )
 from posevote.inference.verification import verify
 from posevote.model.appearance import AppearanceModel, AppearanceOptions
-from posevote.model.density import PoseModel
-from posevote.model.kernels import KernelOptions
+from posevote.model.density import PoseModel, origin_offset
+from posevote.model.kernels import K1_CUTOFF, KernelOptions
 from posevote.model.pruning import PruningPreset, resolve_preset
 from posevote.model.training import TrainedModel, extend_model, train_model
 from posevote.presets import get_preset, nearest_preset
@@ -46,7 +46,7 @@ from posevote.refinement.fitting import FIT_RADIUS_STEPS, find_modes, refine_mod
 from posevote.refinement.instance import RecognitionOptions, recognize
 from posevote.refinement.local import local_refine, rescale_mode
 from posevote.refinement.probability import scored_viewpoints, with_probabilities
-from posevote.results import PoseEstimate
+from posevote.results import Hypothesis, PoseEstimate
 
 ImageLike = str | Path | NDArray
 
@@ -154,7 +154,8 @@ class PoseEstimator(GroupedParams):
             boxes: ArrayLike | None = None, masks: Sequence[ImageLike | None] | None = None,
             instances: Sequence[str] | None = None, category: str = "",
             progress: Callable[[int], None] | None = None, channels: str = "rgb",
-            object_height_m: float | None = None) -> PoseEstimator:
+            object_height_m: float | None = None,
+            origins: ArrayLike | None = None) -> PoseEstimator:
         """Learn the model from pose-annotated images (Sec. II-A, II-C).
 
         Parameters
@@ -179,6 +180,10 @@ class PoseEstimator(GroupedParams):
         object_height_m : float, optional
             The object's height in metres (its box height), so that a camera
             can place it in depth (:mod:`posevote.camera`).
+        origins : array_like, shape (K, 2), optional
+            The image ``(u, v)`` of the object's origin in each training image
+            (a mesh origin projected with the training camera): ``t_cam_obj``
+            then names that point instead of the box centre.
 
         Returns
         -------
@@ -197,7 +202,7 @@ class PoseEstimator(GroupedParams):
                               morph=self.morph_views, prune=resolve_preset(self.prune),
                               appearance=self.appearance is not None, progress=progress,
                               channels=channels, object_height_m=object_height_m,
-                              n_threads=self.n_jobs)
+                              origins=origins, n_threads=self.n_jobs)
         self._set_trained(trained)
         return self
 
@@ -206,7 +211,7 @@ class PoseEstimator(GroupedParams):
                     masks: Sequence[ImageLike | None] | None = None,
                     instances: Sequence[str] | None = None,
                     progress: Callable[[int], None] | None = None,
-                    channels: str = "rgb") -> PoseEstimator:
+                    channels: str = "rgb", origins: ArrayLike | None = None) -> PoseEstimator:
         """Add views or instances to the fitted model: the model a fit on all the data gives.
 
         Arguments as :meth:`fit`. Only the new images are read;
@@ -219,7 +224,7 @@ class PoseEstimator(GroupedParams):
         self._set_trained(extend_model(self._trained(), images, poses, boxes=boxes, masks=masks,
                                        instances=instances, edges=self.edges, kernel=self.kernel,
                                        prune=resolve_preset(self.prune), progress=progress,
-                                       channels=channels))
+                                       channels=channels, origins=origins))
         return self
 
     def _trained(self) -> TrainedModel:
@@ -374,15 +379,24 @@ class PoseEstimator(GroupedParams):
         if self.appearance is not None and hyps:
             hyps[0] = appearance_refine(hyps[0], grey, model, self._appearance_model(),
                                         self.appearance, verified_box=verified_box)
-        kept = tuple(place_all(with_probabilities([h for h in hyps if h.score > self.min_score],
-                                                  probes),
-                               camera, reference_size_px=model.reference_size,
-                               object_height_m=self.object_height_m_))
+        kept_hyps = with_probabilities([h for h in hyps if h.score > self.min_score], probes)
+        kept = tuple(place_all(kept_hyps, camera, reference_size_px=model.reference_size,
+                               object_height_m=self.object_height_m_,
+                               anchors=[self._origin(h) for h in kept_hyps]))
         return PoseEstimate(found=bool(kept), best=kept[0] if kept else None, modes=kept,
                             n_test_features=len(feats), seconds=time.perf_counter() - start,
                             instance=instance if kept else "", instance_margin=margin,
                             top_score=max((h.score for h in hyps), default=0.0),
                             viewpoint_scores=scored_viewpoints(probes))
+
+    def _origin(self, hypothesis: Hypothesis) -> tuple[float, float] | None:
+        """The image of the object's origin under a hypothesis (None: the box centre)."""
+        offset = origin_offset(self._check_fitted(), hypothesis.azimuth, hypothesis.elevation,
+                               kappa=self.viewpoint_kappa_, k1_cutoff=K1_CUTOFF)
+        if offset is None:
+            return None
+        u, v = hypothesis.position + hypothesis.scale * rotate_points(offset, hypothesis.inplane)
+        return float(u), float(v)
 
     # -- persistence -------------------------------------------------------------------
     def save(self, path: str | Path) -> None:

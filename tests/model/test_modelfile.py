@@ -37,6 +37,21 @@ def test_model_file_round_trip(tmp_path, toy_model):
     assert np.array_equal(trained.model.xy, model.xy) and trained.model.instance_names == ("toy",)
 
 
+def test_view_origins_round_trip_and_are_checked(tmp_path, toy_model):
+    from dataclasses import replace
+
+    model = toy_model()
+    origin = np.arange(2.0 * model.n_views).reshape(-1, 2)
+    save_model(tmp_path / "m.npz", _trained(replace(model, view_origin=origin)), {})
+    np.testing.assert_array_equal(load_model(tmp_path / "m.npz")[0].model.view_origin, origin)
+    save_model(tmp_path / "plain.npz", _trained(model), {})
+    assert load_model(tmp_path / "plain.npz")[0].model.view_origin is None
+    for bad in (origin[:-1], np.full_like(origin, np.nan)):
+        _rewrite(tmp_path / "m.npz", tmp_path / "bad.npz", view_origin=bad)
+        with pytest.raises(ValueError, match="bad.npz: corrupt model file .*inconsistent"):
+            load_model(tmp_path / "bad.npz")
+
+
 def test_model_file_errors(tmp_path, toy_model):
     with pytest.raises(FileNotFoundError, match="model file not found"):
         load_model(tmp_path / "none.npz")

@@ -110,6 +110,62 @@ def test_extending_a_model_equals_training_on_everything(synthetic_training, dra
     assert a.best.score == pytest.approx(b.best.score, abs=1e-9)
 
 
+def test_origins_name_the_point_t_is_placed_at(synthetic_training, draw):
+    from posevote import PoseEstimator
+    from posevote.camera import Camera
+    from posevote.geometry import box_centre
+
+    images, az, boxes = synthetic_training
+    # The origin 10 px right of each box centre, turned with the view's in-plane angle 0.
+    origins = np.array([box_centre(b) for b in boxes]) + [10.0, 0.0]
+    est = PoseEstimator().fit(images, az, boxes=boxes, origins=origins, object_height_m=0.1)
+    np.testing.assert_allclose(est.model_.view_origin, [[10.0, 0.0]] * len(images), atol=1e-9)
+    camera = Camera(fx=400.0, fy=400.0, cx=63.5, cy=63.5)
+    turned = draw(np.radians(60), scale=1.1, inplane=np.radians(20))
+    est.set_params(search__inplane_range_deg=(-30.0, 30.0))
+    best = est.estimate(turned, camera=camera).best
+    assert abs(best.inplane_deg - 20.0) < 5.0
+    plain = PoseEstimator().fit(images, az, boxes=boxes, object_height_m=0.1).set_params(
+        search__inplane_range_deg=(-30.0, 30.0)).estimate(turned, camera=camera).best
+    depth = best.t_cam_obj[2]
+    # The origin's image: the box centre plus the offset, scaled and turned with the pose.
+    u, v = np.array(best.position) + best.scale * 10.0 * np.array(
+        [np.cos(best.inplane), np.sin(best.inplane)])
+    np.testing.assert_allclose(best.t_cam_obj[:2], [(u - 63.5) / 400 * depth,
+                                                    (v - 63.5) / 400 * depth], atol=1e-9)
+    # The same pose and depth without origins; t then names the box centre.
+    assert plain.t_cam_obj[2] == pytest.approx(depth)
+    np.testing.assert_allclose(plain.t_cam_obj[:2], [(best.position[0] - 63.5) / 400 * depth,
+                                                     (best.position[1] - 63.5) / 400 * depth],
+                               atol=1e-9)
+    with pytest.raises(ValueError, match=r"origins must have shape \(18, 2\)"):
+        PoseEstimator().fit(images, az, boxes=boxes, origins=origins[:3])
+    bad = origins.copy()
+    bad[4, 1] = np.nan
+    with pytest.raises(ValueError, match="origins: row 4 is not finite"):
+        PoseEstimator().fit(images, az, boxes=boxes, origins=bad)
+    with pytest.raises(ValueError, match="exactly when the model was fitted with them"):
+        est.partial_fit(images[:1], az[:1], boxes=boxes[:1])
+
+
+def test_extending_with_origins_equals_training_on_everything(synthetic_training):
+    from posevote import PoseEstimator
+    from posevote.geometry import box_centre
+
+    images, az, boxes = synthetic_training
+    origins = np.array([box_centre(b) for b in boxes]) + np.column_stack(
+        [np.arange(18.0), -np.arange(18.0) / 2])
+    whole = PoseEstimator().fit(images, az, boxes=boxes, origins=origins)
+    grown = PoseEstimator().fit(images[:10], az[:10], boxes=boxes[:10],
+                                origins=origins[:10]).partial_fit(
+        images[10:], az[10:], boxes=boxes[10:], origins=origins[10:])
+    np.testing.assert_allclose(grown.full_model_.view_origin, whole.full_model_.view_origin,
+                               atol=1e-9)
+    with pytest.raises(ValueError, match="exactly when the model was fitted with them"):
+        PoseEstimator().fit(images[:10], az[:10], boxes=boxes[:10]).partial_fit(
+            images[10:], az[10:], boxes=boxes[10:], origins=origins[10:])
+
+
 def test_extending_needs_what_can_be_redone(synthetic_training):
     from posevote import NotFittedError, PoseEstimator
     from posevote.model.appearance import AppearanceOptions

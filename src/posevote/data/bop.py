@@ -15,9 +15,10 @@ Results are written in the BOP results CSV,
 three in millimetres, separated by spaces, ``time`` the seconds spent on the image
 (the same for all its rows).
 
-posevote's ``t_cam_obj`` is its reference point (the box centre's ray at the
-object's depth), not the mesh origin of a BOP model: the two differ by the
-origin's offset from the box centre.
+Trained on a BOP scene, a model learns where the model's origin lies in each
+view (:attr:`BopScene.origins_px`, ``fit(..., origins=)``), so that its
+``t_cam_obj``, and the results' ``t``, name the origin as the ground truth does
+rather than the box centre (:mod:`posevote.camera`).
 """
 
 from __future__ import annotations
@@ -65,6 +66,14 @@ class BopScene:
     im_ids: tuple[int, ...]
     rotations: NDArray[np.float64]
     translations_m: NDArray[np.float64]
+
+    @property
+    def origins_px(self) -> NDArray[np.float64]:
+        """The image ``(u, v)`` of the model's origin in each view (``cam_K`` times
+        ``cam_t_m2c``), pixels, shape (K, 2): what training takes as ``origins``."""
+        return np.array([[c.fx * t[0] / t[2] + c.cx, c.fy * t[1] / t[2] + c.cy]
+                         for c, t in zip(self.cameras, self.translations_m, strict=True)]
+                        ).reshape(-1, 2)
 
 
 def _load_json(path: Path) -> dict[str, Any]:
@@ -168,6 +177,9 @@ def read_bop_scene(scene: str | Path, *, obj_id: int, min_visible: float = 0.1) 
             if not (np.allclose(R @ R.T, np.eye(3), atol=1e-3) and np.linalg.det(R) > 0):
                 raise ValueError(f"{where}, annotation {index}: cam_R_m2c is not a rotation")
             t = _numbers(ann.get("cam_t_m2c"), 3, where=f"{where}, cam_t_m2c") / 1000.0
+            if not t[2] > 0:
+                raise ValueError(f"{where}, annotation {index}: cam_t_m2c puts the object "
+                                 f"behind the camera (z = {1000 * t[2]:g} mm)")
             entry = infos[index] if index < len(infos) and isinstance(infos[index], dict) else {}
             if float(entry.get("visib_fract", 1.0)) < min_visible:
                 continue

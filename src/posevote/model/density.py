@@ -67,6 +67,10 @@ class PoseModel:
     view_neighbour : ndarray of int, shape (K, 2), or None
         Each view's next and previous view on its turntable (-1: none);
         present with ``shift``.
+    view_origin : ndarray, shape (K, 2), or None
+        Where the object's origin (the point ``t_cam_obj`` names, e.g. a
+        mesh origin) lies in each view, from its reference point, reference
+        pixels, upright; None: not given (``t_cam_obj`` names the box centre).
     """
 
     xy: NDArray[np.float64]
@@ -83,6 +87,7 @@ class PoseModel:
     instance_size: tuple[float, ...] = ()
     shift: NDArray[np.float64] | None = None
     view_neighbour: NDArray[np.int64] | None = None
+    view_origin: NDArray[np.float64] | None = None
 
     def size_of(self, instance: int) -> float:
         """The training size of an instance relative to the reference (1.0 if unknown)."""
@@ -181,7 +186,8 @@ class PoseModel:
                       shift=None if self.shift is None else self.shift[keep],
                       view_neighbour=None if self.view_neighbour is None else np.where(
                           self.view_neighbour[views] >= 0,
-                          local[np.maximum(self.view_neighbour[views], 0)], -1))
+                          local[np.maximum(self.view_neighbour[views], 0)], -1),
+                      view_origin=None if self.view_origin is None else self.view_origin[views])
         return PoseModel(**fields)
 
     def with_weights(self, weight: NDArray[np.float64]) -> PoseModel:
@@ -277,6 +283,21 @@ def viewpoint_weights(model: PoseModel, azimuth: float, elevation: float, *, kap
     """Pose kernel K1 between a viewpoint and each training view, shape (K,)."""
     probe = viewing_direction(azimuth, elevation)
     return viewpoint_kernel(model.view_directions(), probe, kappa)
+
+
+def origin_offset(model: PoseModel, azimuth: float, elevation: float, *, kappa: float,
+                  k1_cutoff: float) -> NDArray[np.float64] | None:
+    """Where the object's origin lies from the reference point at a viewpoint, reference
+    pixels, upright: the views' offsets (``view_origin``) averaged with the pose kernel K1
+    over the views where it reaches ``k1_cutoff`` (the nearest view alone if none), as
+    the box is; None for a model without them."""
+    if model.view_origin is None:
+        return None
+    k1 = viewpoint_weights(model, azimuth, elevation, kappa=kappa)
+    views = np.flatnonzero(k1 >= k1_cutoff)
+    if len(views) == 0 or not k1[views].sum() > 0:
+        return model.view_origin[int(np.argmax(k1))].copy()
+    return np.average(model.view_origin[views], axis=0, weights=k1[views])
 
 
 def image_density(features: EdgeFeatures, x_xy: NDArray[np.float64], x_theta: NDArray[np.float64],

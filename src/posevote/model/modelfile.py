@@ -14,10 +14,11 @@ Arrays: the features (``xy``, ``theta``, ``view``, ``weight``) and views
 (``view_azimuth``, ``view_elevation``, ``view_box``, ``view_instance``) of
 the searched model; ``full_*`` feature arrays when it is pruned (the full
 model, for recognition and refinement); ``shift`` and ``view_neighbour``
-for morphed models; ``view_descriptor``, ``objectness`` and
-``box_regressor`` for the appearance stages. Version 3 (grouped
-parameters) is the only version read: files of versions 1-2 name
-parameters that no longer exist and must be retrained.
+for morphed models; ``view_origin`` when training gave the object's origin;
+``view_descriptor``, ``objectness`` and ``box_regressor`` for the
+appearance stages. Version 4 is the only version read: files of versions
+1-2 name parameters that no longer exist, and version 3's appearance
+options hold a field that version 4 dropped; both must be retrained.
 """
 
 from __future__ import annotations
@@ -49,6 +50,8 @@ MAX_VIEWS = 1_000_000
 _FEATURE_ARRAYS = ("xy", "theta", "view", "weight")
 _ARRAYS = (*_FEATURE_ARRAYS, "view_azimuth", "view_elevation", "view_box", "view_instance")
 _MORPH_ARRAYS = ("shift", "view_neighbour")
+#: Optional per-view arrays, written when the model has them.
+_VIEW_OPTIONAL = ("view_origin",)
 
 
 def save_model(path: str | Path, trained: TrainedModel, params: dict[str, Any], *,
@@ -83,7 +86,7 @@ def save_model(path: str | Path, trained: TrainedModel, params: dict[str, Any], 
                   else list(trained.appearance.window)},
     }
     arrays = {name: getattr(model, name) for name in _ARRAYS}
-    for name in _MORPH_ARRAYS:
+    for name in (*_MORPH_ARRAYS, *_VIEW_OPTIONAL):
         if getattr(model, name) is not None:
             arrays[name] = getattr(model, name)
     if full is not model:
@@ -165,7 +168,8 @@ def load_model(path: str | Path) -> tuple[TrainedModel, dict[str, Any]]:
                                  f"{', '.join(missing)})")
             _check_sizes(path, data)
             arrays = {name: data[name] for name in _ARRAYS}
-            arrays.update({name: data[name] for name in _MORPH_ARRAYS if name in data.files})
+            arrays.update({name: data[name] for name in (*_MORPH_ARRAYS, *_VIEW_OPTIONAL)
+                           if name in data.files})
             full = ({name: data[f"full_{name}"] for name in _FEATURE_ARRAYS}
                     if "full_xy" in data.files else None)
             if full is not None:
@@ -283,6 +287,11 @@ def _build(path: Path, arrays: dict[str, np.ndarray], header: dict[str, Any]) ->
                      and shift.shape == (m, 2, 2) and neighbour.shape == (k, 2)
                      and bool(np.all(np.isfinite(shift)))
                      and bool(np.all((neighbour >= -1) & (neighbour < k))))
+    origin = arrays.get("view_origin")
+    if origin is not None:
+        shapes_ok = (shapes_ok and origin.shape == (k, 2)
+                     and np.issubdtype(origin.dtype, np.number)
+                     and bool(np.all(np.isfinite(origin))))
     if not shapes_ok:
         raise ValueError(f"{path}: corrupt model file (inconsistent array shapes)")
     for name in ("xy", "theta", "weight", "view_azimuth", "view_elevation", "view_box"):
@@ -316,4 +325,5 @@ def _build(path: Path, arrays: dict[str, np.ndarray], header: dict[str, Any]) ->
         instance_size=tuple(float(f) for f in size),
         shift=None if shift is None else shift.astype(np.float64),
         view_neighbour=None if neighbour is None else neighbour.astype(np.int64),
+        view_origin=None if origin is None else origin.astype(np.float64),
     )

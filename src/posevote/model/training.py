@@ -22,7 +22,7 @@ from posevote._parallel import thread_map
 from posevote.camera import check_object_height
 from posevote.data.images import load_image, read_mask
 from posevote.features.edges import EdgeFeatures, EdgeOptions, box_mask, extract_edges
-from posevote.geometry import box_centre
+from posevote.geometry import box_centre, rotate_points
 from posevote.model.appearance import AppearanceCollector, AppearanceModel
 from posevote.model.density import PoseModel, build_model, viewpoint_kappa
 from posevote.model.kernels import ORIENTATION_KAPPA, KernelOptions
@@ -151,12 +151,12 @@ def train_model(images: Sequence[str | Path | NDArray], poses: ArrayLike, *,
                 morph: bool = False, prune: PruningPreset | None = None,
                 appearance: bool = False, progress: Callable[[int], None] | None = None,
                 channels: str = "rgb", object_height_m: float | None = None,
-                n_threads: int = 1) -> TrainedModel:
+                origins: ArrayLike | None = None, n_threads: int = 1) -> TrainedModel:
     """Learn a model from pose-annotated images (Sec. II-A, II-C, III-A).
 
     Parameters
     ----------
-    images, poses, boxes, masks, instances, category, progress, channels, object_height_m
+    images, poses, boxes, masks, instances, category, progress, channels, object_height_m, origins
         As in :meth:`posevote.estimator.PoseEstimator.fit`.
     edges : EdgeOptions
         Edge extraction.
@@ -183,7 +183,7 @@ def train_model(images: Sequence[str | Path | NDArray], poses: ArrayLike, *,
     images = list(images)
     views = _extract(images, poses, boxes, masks, instances, edges=edges, morph=morph,
                      appearance=appearance, progress=progress, channels=channels,
-                     n_threads=n_threads)
+                     n_threads=n_threads, origins=origins)
     return _pool(views, category=category, kernel=kernel, prune=prune, height=height,
                  n_threads=n_threads)
 
@@ -199,16 +199,18 @@ class _Views:
     names: list[str]
     collector: AppearanceCollector | None = None
     crops: ViewCrops | None = None
+    origins: NDArray[np.float64] | None = None
 
 
 def _extract(images: list[Any], poses: ArrayLike, boxes: ArrayLike | None,
              masks: Sequence[Any] | None, instances: Sequence[str] | None, *,
              edges: EdgeOptions, morph: bool, appearance: bool,
-             progress: Callable[[int], None] | None, channels: str, n_threads: int = 1
-             ) -> _Views:
+             progress: Callable[[int], None] | None, channels: str, n_threads: int = 1,
+             origins: ArrayLike | None = None) -> _Views:
     """Each image's edges inside its box (and mask), box and pose (``n_threads`` images at a time)."""
     pose_arr, box_arr, mask_list, names = _check_inputs(images, poses, boxes, masks, instances)
     k = len(images)
+    origin_arr = None if origins is None else _check_origins(origins, k)
     feats, centres, sizes = [], np.zeros((k, 2)), np.zeros((k, 2))
     collector = AppearanceCollector(box_arr) if appearance else None
     crops = ViewCrops() if morph else None
@@ -246,7 +248,21 @@ def _extract(images: list[Any], poses: ArrayLike, boxes: ArrayLike | None,
         if progress is not None:
             progress(1)
     return _Views(feats=feats, centres=centres, sizes=sizes, poses=pose_arr, names=names,
-                  collector=collector, crops=crops)
+                  collector=collector, crops=crops, origins=origin_arr)
+
+
+def _check_origins(origins: ArrayLike, k: int) -> NDArray[np.float64]:
+    """``origins`` as a (K, 2) array of finite pixels, or a ValueError naming the row."""
+    try:
+        arr = np.asarray(origins, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError("origins must be an array of numbers, shape (K, 2)") from None
+    if arr.shape != (k, 2):
+        raise ValueError(f"origins must have shape ({k}, 2) for {k} images, got {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        row = int(np.flatnonzero(~np.all(np.isfinite(arr), axis=1))[0])
+        raise ValueError(f"origins: row {row} is not finite ({arr[row].tolist()})")
+    return arr
 
 
 def _pool(views: _Views, *, category: str, kernel: KernelOptions, prune: PruningPreset | None,
@@ -268,6 +284,11 @@ def _pool(views: _Views, *, category: str, kernel: KernelOptions, prune: Pruning
                         instances=inst_index, instance_names=instance_names,
                         reference_size=reference, category=category,
                         instance_size=inst_size.tolist())
+    if views.origins is not None:
+        # In the features' frame: from the reference point, upright, in reference pixels.
+        model = replace(model, view_origin=np.array([
+            rotate_points(views.origins[k] - centres[k], -pose_arr[k, 2]) / scales[k]
+            for k in range(len(feats))]).reshape(-1, 2))
     if crops is not None:
         neighbours = turntable_neighbours(model.view_azimuth, model.view_elevation,
                                           model.view_instance)
@@ -291,7 +312,7 @@ def extend_model(trained: TrainedModel, images: Sequence[str | Path | NDArray], 
                  instances: Sequence[str] | None = None, edges: EdgeOptions = EdgeOptions(),
                  kernel: KernelOptions = KernelOptions(), prune: PruningPreset | None = None,
                  progress: Callable[[int], None] | None = None,
-                 channels: str = "rgb") -> TrainedModel:
+                 channels: str = "rgb", origins: ArrayLike | None = None) -> TrainedModel:
     """The model of ``trained``'s views and the new ones: what a training on all of them gives.
 
     Only the new images are read. The views already learnt are taken back
@@ -307,18 +328,23 @@ def extend_model(trained: TrainedModel, images: Sequence[str | Path | NDArray], 
     Raises
     ------
     ValueError
-        On a model with the appearance stages or morphing, or bad new input
-        (as :func:`train_model`).
+        On a model with the appearance stages or morphing, new views with
+        ``origins`` for a model without them or the other way round, or bad
+        new input (as :func:`train_model`).
     """
     full = trained.full_model
     if trained.appearance is not None or full.shift is not None:
         raise ValueError("this model has the appearance stages or morphing, which are learnt "
                          "from every training image: fit it again on all the images")
+    if (origins is None) != (full.view_origin is None):
+        raise ValueError("origins: give them for the new views exactly when the model was "
+                         "fitted with them" + (" (it was)" if origins is None else
+                                               " (it was not)"))
     if isinstance(images, (str, Path)):
         raise TypeError(f"images must be a sequence of image paths or arrays, got the single "
                         f"path {str(images)!r}")
     new = _extract(list(images), poses, boxes, masks, instances, edges=edges, morph=False,
-                   appearance=False, progress=progress, channels=channels)
+                   appearance=False, progress=progress, channels=channels, origins=origins)
     size = np.asarray(full.instance_size or [1.0] * len(full.instance_names), dtype=np.float64)
     old_feats = []
     for k in range(full.n_views):
@@ -332,6 +358,8 @@ def extend_model(trained: TrainedModel, images: Sequence[str | Path | NDArray], 
                    centres=np.vstack([np.zeros((full.n_views, 2)), new.centres]),
                    sizes=np.vstack([old_sizes, new.sizes]),
                    poses=np.vstack([old_poses, new.poses]),
-                   names=[full.instance_names[i] for i in full.view_instance] + new.names)
+                   names=[full.instance_names[i] for i in full.view_instance] + new.names,
+                   origins=None if full.view_origin is None or new.origins is None else np.vstack(
+                       [full.view_origin * size[full.view_instance][:, None], new.origins]))
     return _pool(views, category=full.category, kernel=kernel, prune=prune,
                  height=trained.object_height_m)
