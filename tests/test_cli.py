@@ -1,6 +1,7 @@
 import json
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -31,6 +32,25 @@ def test_train_threads_give_the_same_model_and_are_not_stored(model_file, traini
     one, two = PoseEstimator.load(model_file), PoseEstimator.load(out)
     assert two.n_jobs == 1
     np.testing.assert_array_equal(one.model_.weight, two.model_.weight)
+
+
+def test_train_reads_the_origin_columns(training_folder, tmp_path):
+    import shutil
+
+    from posevote import PoseEstimator
+    from posevote.data import read_poses_csv, write_poses_csv
+
+    folder = tmp_path / "origins"
+    shutil.copytree(training_folder, folder)
+    ts = read_poses_csv(folder)
+    centres = ts.boxes[:, :2] + ts.boxes[:, 2:] / 2
+    write_poses_csv(replace(ts, origins=centres + [0.0, 5.0]), folder)
+    out = tmp_path / "o.npz"
+    result = CliRunner().invoke(cli, ["train", str(folder), "-o", str(out)])
+    assert result.exit_code == 0, result.output
+    # Five pixels below the box centre (its half-pixel convention aside), in every view.
+    np.testing.assert_allclose(PoseEstimator.load(out).model_.view_origin,
+                               [[0.5, 5.5]] * len(ts), atol=0.01)
 
 
 @pytest.fixture

@@ -71,10 +71,8 @@ def _input_error(exc: BaseException) -> InputError:
 BAD_INPUT = (OSError, ValueError, TypeError, MemoryError, ImportError)
 
 
-def _bop_training(source: Path, objects: str | None, height: float | None
-                  ) -> tuple[Any, float, Any]:
-    """A BOP scene's views of one object, its height (given, or from the scene's cameras)
-    and the image of its origin in each view."""
+def _bop_training(source: Path, objects: str | None, height: float | None) -> tuple[Any, float]:
+    """A BOP scene's views of one object, and its height (given, or from the scene's cameras)."""
     from posevote.data.bop import read_bop_scene
 
     obj = _int_list(objects, option="--objects")
@@ -82,8 +80,7 @@ def _bop_training(source: Path, objects: str | None, height: float | None
         raise click.BadParameter("--layout bop needs one obj_id", param_hint="--objects")
     scene = read_bop_scene(source, obj_id=obj[0])
     ts = scene.training_set
-    return (ts, height if height is not None else ts.object_height_m(scene.cameras),
-            scene.origins_px)
+    return ts, height if height is not None else ts.object_height_m(scene.cameras)
 
 
 def _object_height(ts: Any, camera_file: Path | None, height: float | None) -> float | None:
@@ -230,7 +227,6 @@ def train(source: Path, output: Path, layout: str, objects: str | None, cars: st
     if prune != "none":
         settings["prune"] = prune
     height: float | None = None
-    origins = None
     try:
         if layout == "csv":
             ts = read_poses_csv(source, allow_outside_paths=allow_outside_paths)
@@ -241,7 +237,7 @@ def train(source: Path, output: Path, layout: str, objects: str | None, cars: st
             azimuths = None if azimuth_step_deg is None else np.arange(0, 360, azimuth_step_deg)
             ts = read_coil(source, objects=obj, azimuths_deg=azimuths)
         elif layout == "bop":
-            ts, height, origins = _bop_training(source, objects, object_height_m)
+            ts, height = _bop_training(source, objects, object_height_m)
         else:
             car_list = _int_list(cars, option="--cars")
             if not car_list:
@@ -258,7 +254,7 @@ def train(source: Path, output: Path, layout: str, objects: str | None, cars: st
                     masks=list(ts.masks) if ts.masks else None,
                     instances=list(ts.instances) if ts.instances and all(ts.instances) else None,
                     category=ts.category, progress=bar.update, object_height_m=height,
-                    origins=origins)
+                    origins=ts.origins if len(ts.origins) else None)
         # The threads were this machine's choice, not the model's.
         est.set_params(n_jobs=jobs)
         est.save(output)

@@ -30,6 +30,20 @@ def test_reads_full_csv_and_round_trips(tmp_path):
     write_poses_csv(ts, folder)
     again = read_poses_csv(folder)
     assert np.allclose(again.poses, ts.poses) and np.allclose(again.boxes, ts.boxes)
+    assert ts.origins.shape == again.origins.shape == (0, 2)
+
+
+def test_reads_and_writes_the_origin_columns(tmp_path):
+    folder = make_folder(tmp_path, ["im0.png,10,12.5,7", "im1.png,20,14,6.25"],
+                         header="image,azimuth_deg,origin_u,origin_v")
+    ts = read_poses_csv(folder)
+    np.testing.assert_allclose(ts.origins, [[12.5, 7.0], [14.0, 6.25]])
+    np.testing.assert_allclose(ts.subset([1]).origins, [[14.0, 6.25]])
+    # Written with empty box fields (no boxes): read back as no box, not refused.
+    write_poses_csv(ts, folder)
+    again = read_poses_csv(folder)
+    np.testing.assert_allclose(again.origins, ts.origins)
+    assert np.all(np.isnan(again.boxes))
 
 
 @pytest.mark.parametrize(
@@ -42,9 +56,14 @@ def test_reads_full_csv_and_round_trips(tmp_path):
         (["im0.png,1,2"], "image,azimuth_deg,box_x", r"all four box columns"),
         (["im0.png,1,0,0,5,-1"], "image,azimuth_deg,box_x,box_y,box_w,box_h",
          r"row 2: box width and height must be positive"),
+        (["im0.png,1,0,,5,5"], "image,azimuth_deg,box_x,box_y,box_w,box_h",
+         r"row 2: column 'box_y' must be a number"),
         (["im0.png,1,95"], "image,azimuth_deg,elevation_deg", r"elevation_deg must be in"),
         ([], "image,azimuth_deg", r"no rows"),
         (["im0.png,1,extra"], "image,azimuth_deg", r"row 2: more fields"),
+        (["im0.png,1,3"], "image,azimuth_deg,origin_u", r"both origin columns"),
+        (["im0.png,1,3,"], "image,azimuth_deg,origin_u,origin_v",
+         r"row 2: column 'origin_v' must be a number"),
     ],
 )
 def test_malformed_csv(tmp_path, rows, header, message):

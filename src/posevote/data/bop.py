@@ -26,7 +26,7 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -48,7 +48,8 @@ class BopScene:
     Attributes
     ----------
     training_set : TrainingSet
-        Images, poses (radians), boxes, masks and distances (metres).
+        Images, poses (radians), boxes, masks, distances (metres) and the
+        images of the model's origin (:attr:`origins_px`).
     cameras : tuple of Camera
         Each view's camera.
     scene_id : int
@@ -200,11 +201,14 @@ def read_bop_scene(scene: str | Path, *, obj_id: int, min_visible: float = 0.1) 
             trans.append(t)
     if not images:
         raise ValueError(f"{folder}: no visible annotation of object {obj_id}")
-    ts = TrainingSet(images=tuple(images), poses=np.array(poses, dtype=np.float64),
-                     boxes=np.array(boxes), masks=tuple(masks),
-                     instances=(f"obj{obj_id}",) * len(images), distances=np.array(dists))
-    return BopScene(training_set=ts, cameras=tuple(cameras), scene_id=scene_id,
-                    im_ids=tuple(im_ids), rotations=np.array(rots), translations_m=np.array(trans))
+    read = BopScene(training_set=TrainingSet(images=tuple(images),
+                                             poses=np.array(poses, dtype=np.float64),
+                                             boxes=np.array(boxes), masks=tuple(masks),
+                                             instances=(f"obj{obj_id}",) * len(images),
+                                             distances=np.array(dists)),
+                    cameras=tuple(cameras), scene_id=scene_id, im_ids=tuple(im_ids),
+                    rotations=np.array(rots), translations_m=np.array(trans))
+    return replace(read, training_set=replace(read.training_set, origins=read.origins_px))
 
 
 def results_rows(scene_id: int, im_id: int, obj_id: int, score: float,

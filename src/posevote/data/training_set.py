@@ -13,14 +13,17 @@ column             required  meaning
 ``elevation_deg``  no        camera elevation, degrees (default 0)
 ``inplane_deg``    no        in-plane rotation of the image, degrees (default 0)
 ``box_x``,         no        object box in pixels: left, top, width, height
-``box_y``,                   (all four or none; default: the mask's box, or the
-``box_w``,                   whole image)
+``box_y``,                   (all four or none; a row with the four empty has
+``box_w``,                   none: the mask's box, or the whole image)
 ``box_h``
 ``mask``           no        mask image, relative to the folder; non-zero
                              pixels are the object; edges are kept only there
 ``distance_m``     no        camera distance to the object's reference point,
                              metres (with the training camera, gives the
                              object's metric height: :mod:`posevote.camera`)
+``origin_u``,      no        the image of the object's origin (a mesh origin,
+``origin_v``                 say), pixels (both or none; in every row): the
+                             point ``t_cam_obj`` then names
 ``instance``       no        instance name (for category models)
 ``category``       no        category name
 =================  ========  ==================================================
@@ -55,6 +58,7 @@ from posevote.data.images import read_image, read_mask
 
 POSES_FILE = "poses.csv"
 _BOX_COLUMNS = ("box_x", "box_y", "box_w", "box_h")
+_ORIGIN_COLUMNS = ("origin_u", "origin_v")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -78,6 +82,9 @@ class TrainingSet:
     distances : ndarray, shape (K,) or (0,)
         Camera distance of each image, metres (NaN where not given; empty
         when the column is absent).
+    origins : ndarray, shape (K, 2) or (0, 2)
+        The image of the object's origin in each image, pixels (empty when
+        not given): ``fit(..., origins=)``.
     """
 
     images: tuple[Path, ...]
@@ -87,6 +94,7 @@ class TrainingSet:
     instances: tuple[str, ...] = field(default=())
     category: str = ""
     distances: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
+    origins: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 2)))
 
     def __len__(self) -> int:
         return len(self.images)
@@ -102,6 +110,7 @@ class TrainingSet:
             instances=tuple(self.instances[i] for i in idx) if self.instances else (),
             category=self.category,
             distances=self.distances[idx] if len(self.distances) else self.distances,
+            origins=self.origins[idx] if len(self.origins) else self.origins,
         )
 
     def object_height_m(self, camera: Camera | Sequence[Camera]) -> float:
@@ -132,7 +141,7 @@ class TrainingSet:
 #: The columns poses.csv may have; any other column is refused (a misspelt
 #: optional column would otherwise be ignored without a word).
 COLUMNS = ("image", "azimuth_deg", "elevation_deg", "inplane_deg", *_BOX_COLUMNS, "mask",
-           "distance_m", "instance", "category")
+           "distance_m", *_ORIGIN_COLUMNS, "instance", "category")
 #: Azimuth and in-plane angles beyond this (degrees) are refused as mistakes.
 MAX_ANGLE_DEG = 720.0
 #: A poses.csv larger than this (bytes) is refused before it is read.
@@ -186,6 +195,8 @@ def _header(path: Path, fields: list[str]) -> list[str]:
     has_box = [c in columns for c in _BOX_COLUMNS]
     if any(has_box) and not all(has_box):
         raise ValueError(f"{path}: give all four box columns {_BOX_COLUMNS} or none")
+    if (_ORIGIN_COLUMNS[0] in columns) != (_ORIGIN_COLUMNS[1] in columns):
+        raise ValueError(f"{path}: give both origin columns {_ORIGIN_COLUMNS} or none")
     return columns
 
 
@@ -246,6 +257,8 @@ def read_poses_csv(folder: str | Path, *, allow_outside_paths: bool = False) -> 
         raise ValueError(f"{path}: the file is empty; it needs a header row and one row per image")
     columns = _header(path, table[0])
     has_box = _BOX_COLUMNS[0] in columns
+    has_origin = _ORIGIN_COLUMNS[0] in columns
+    origins: list[list[float]] = []
     images: list[Path] = []
     poses: list[NDArray[np.float64]] = []
     boxes: list[list[float]] = []
@@ -287,7 +300,7 @@ def read_poses_csv(folder: str | Path, *, allow_outside_paths: bool = False) -> 
                 raise ValueError(f"{path}, row {row_number}: {col} must be in "
                                  f"[-{MAX_ANGLE_DEG:g}, {MAX_ANGLE_DEG:g}] degrees, got {value:g}")
         poses.append(np.radians(angles))
-        if has_box:
+        if has_box and any(row[c] for c in _BOX_COLUMNS):
             box = [_parse_float(row[c], path=path, row=row_number, column=c)
                    for c in _BOX_COLUMNS]
             if box[2] <= 0 or box[3] <= 0:
@@ -314,6 +327,9 @@ def read_poses_csv(folder: str | Path, *, allow_outside_paths: bool = False) -> 
             distances.append(distance)
         else:
             distances.append(np.nan)
+        if has_origin:
+            origins.append([_parse_float(row[c], path=path, row=row_number, column=c)
+                            for c in _ORIGIN_COLUMNS])
         instances.append(row.get("instance", ""))
         if row.get("category"):
             categories.add(row["category"])
@@ -331,6 +347,7 @@ def read_poses_csv(folder: str | Path, *, allow_outside_paths: bool = False) -> 
         instances=tuple(instances),
         category=categories.pop() if categories else "",
         distances=np.array(distances) if "distance_m" in columns else np.zeros(0),
+        origins=np.array(origins, dtype=np.float64).reshape(-1, 2),
     )
 
 
@@ -343,22 +360,24 @@ def write_poses_csv(training_set: TrainingSet, folder: str | Path) -> Path:
     from posevote._io import atomic_write_text
 
     folder = Path(folder)
+    origins = len(training_set.origins) == len(training_set) > 0
     lines = ["image,azimuth_deg,elevation_deg,inplane_deg,box_x,box_y,box_w,box_h,mask,"
-             "distance_m,instance,category"]
+             "distance_m," + ("origin_u,origin_v," if origins else "") + "instance,category"]
     masks = training_set.masks or (None,) * len(training_set)
     instances = training_set.instances or ("",) * len(training_set)
     distances = training_set.distances if len(training_set.distances) \
         else np.full(len(training_set), np.nan)
-    for img, pose, box, mask, dist, inst in zip(training_set.images, training_set.poses,
-                                                training_set.boxes, masks, distances, instances,
-                                                strict=True):
+    for k, (img, pose, box, mask, dist, inst) in enumerate(zip(
+            training_set.images, training_set.poses, training_set.boxes, masks, distances,
+            instances, strict=True)):
         box_text = ",".join("" if np.isnan(b) else f"{b:.3f}" for b in box)
         deg = np.degrees(pose)
         rel = Path(img).resolve().relative_to(folder.resolve())
         mask_text = "" if mask is None else str(Path(mask).resolve().relative_to(folder.resolve()))
         dist_text = "" if np.isnan(dist) else f"{dist:.6g}"
+        origin_text = "".join(f"{c:.3f}," for c in training_set.origins[k]) if origins else ""
         lines.append(f"{rel},{deg[0]:.4f},{deg[1]:.4f},{deg[2]:.4f},{box_text},{mask_text},"
-                     f"{dist_text},{inst},{training_set.category}")
+                     f"{dist_text},{origin_text}{inst},{training_set.category}")
     out = folder / POSES_FILE
     atomic_write_text(out, "\n".join(lines) + "\n")
     return out
