@@ -360,7 +360,7 @@ class PoseEstimator(GroupedParams):
                 for v in modes]
         recognizing = self.recognition is not None and len(model.instance_names) > 1
         fine = image_maps(feats, shape, setup) if hyps and recognizing else None
-        if not self.local_refinement and self.appearance is None and hyps \
+        if self.fitting and not self.local_refinement and self.appearance is None and hyps \
                 and len(model.instance_names) <= 1:
             # The fit reads the scale a few percent short; the narrow kernel does not
             # (one instance: a category's pooled views pull it onto inner edges).
