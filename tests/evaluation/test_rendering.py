@@ -26,3 +26,26 @@ def test_render_focal_is_the_field_of_view_at_the_image_size():
     f = render_focal(128)
     assert 2 * np.degrees(np.arctan(64 / f)) == pytest.approx(RENDER_FOV_DEG)
     assert render_focal(256) == pytest.approx(2 * f)
+
+
+def test_the_mesh_origin_is_given_in_the_camera_frame():
+    import pybullet
+
+    from posevote.evaluation.rendering import camera_point
+
+    # The camera's target lies straight ahead at its distance; up in the world is up
+    # in the image (OpenCV's y down).
+    view = pybullet.computeViewMatrixFromYawPitchRoll(
+        cameraTargetPosition=[0.1, 0.2, 0.3], distance=2.0, yaw=0.0, pitch=-30.0, roll=0.0,
+        upAxisIndex=2)
+    np.testing.assert_allclose(camera_point(view, np.array([0.1, 0.2, 0.3])), [0, 0, 2],
+                               atol=1e-6)
+    assert camera_point(view, np.array([0.1, 0.2, 0.4]))[1] < 0
+    # The duck's origin, turned with it about its box's centre, projects onto the duck
+    # and moves as it turns.
+    views = render_turntable(np.radians([0.0, 90.0, 200.0]), size=64, distance=None)
+    f = render_focal(64)
+    for v in views:
+        u, w = f * v.origin[:2] / v.origin[2] + 31.5
+        assert v.mask[int(round(w)), int(round(u))]
+    assert np.ptp([v.origin for v in views], axis=0).max() > 1e-3

@@ -9,7 +9,8 @@ annotation, boxes as ``[x, y, w, h]`` pixels). Ids are written with six digits.
 
 As a training set, each annotation of the object becomes a view: its pose
 is ``cam_R_m2c`` read in posevote's angles (:func:`posevote.geometry.pose_from_rotation`),
-its box ``bbox_visib``, its mask ``mask_visib``, its distance ``|cam_t_m2c|``.
+its box ``bbox_visib``, its mask ``mask_visib``, its distance the depth of
+``cam_t_m2c`` (its z: the pinhole's size falls with the depth, not the range).
 Results are written in the BOP results CSV,
 ``scene_id,im_id,obj_id,score,R,t,time``: ``R`` nine numbers row-major and ``t``
 three in millimetres, separated by spaces, ``time`` the seconds spent on the image
@@ -194,7 +195,7 @@ def read_bop_scene(scene: str | Path, *, obj_id: int, min_visible: float = 0.1) 
             masks.append(mask if mask.is_file() else None)
             poses.append(pose_from_rotation(R))
             boxes.append(box)
-            dists.append(float(np.linalg.norm(t)))
+            dists.append(float(t[2]))
             cameras.append(camera)
             im_ids.append(int(key))
             rots.append(R)

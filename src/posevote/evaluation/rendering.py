@@ -8,7 +8,8 @@ protocol (nothing to download).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Sequence
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
@@ -25,13 +26,22 @@ RENDER_FOV_DEG = 40.0
 
 @dataclass(frozen=True, kw_only=True, eq=False)
 class RenderedView:
-    """A rendered view: grey image, object mask, object box, azimuth (radians), camera distance (m)."""
+    """A rendered view: grey image, object mask, object box, azimuth (radians), camera distance
+    (m), and the mesh's origin in the camera frame (m, OpenCV axes: x right, y down, z ahead)."""
 
     image: NDArray[np.float64]
     mask: NDArray[np.bool_]
     box: NDArray[np.float64]
     azimuth: float
     distance: float = float("nan")
+    origin: NDArray[np.float64] = field(default_factory=lambda: np.full(3, np.nan))
+
+
+def camera_point(view_matrix: Sequence[float], point: NDArray[np.float64]) -> NDArray[np.float64]:
+    """A world point in the camera frame of pybullet's view matrix (OpenGL's, column-major:
+    y up, looking down -z), turned to OpenCV's axes (y down, z ahead), metres."""
+    gl = np.reshape(np.asarray(view_matrix, dtype=np.float64), (4, 4)).T @ np.append(point, 1.0)
+    return np.array([gl[0], -gl[1], -gl[2]])
 
 
 def render_focal(size: int) -> float:
@@ -119,8 +129,10 @@ def render_turntable(azimuths: NDArray[np.float64], *, size: int = 128, elevatio
             gray = np.where(mask, gray, 0.0)  # object on black, as COIL-100
             rows, cols = np.nonzero(mask)
             box = np.array([cols.min(), rows.min(), np.ptp(cols) + 1, np.ptp(rows) + 1], dtype=float)
+            position, _ = pybullet.getBasePositionAndOrientation(body, physicsClientId=client)
             out.append(RenderedView(image=gray, mask=mask, box=box, azimuth=float(az),
-                                    distance=float(distance)))
+                                    distance=float(distance),
+                                    origin=camera_point(view, np.asarray(position))))
         return out
     finally:
         pybullet.disconnect(client)
