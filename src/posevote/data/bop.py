@@ -17,7 +17,7 @@ three in millimetres, separated by spaces, ``time`` the seconds spent on the ima
 (the same for all its rows).
 
 Trained on a BOP scene, a model learns where the model's origin lies in each
-view (:attr:`BopScene.origins_px`, ``fit(..., origins=)``), so that its
+view (the training set's ``origins``, ``fit(..., origins=)``), so that its
 ``t_cam_obj``, and the results' ``t``, name the origin as the ground truth does
 rather than the box centre (:mod:`posevote.camera`).
 """
@@ -27,7 +27,7 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -50,7 +50,8 @@ class BopScene:
     ----------
     training_set : TrainingSet
         Images, poses (radians), boxes, masks, distances (metres) and the
-        images of the model's origin (:attr:`origins_px`).
+        image of the model's origin in each view (``cam_K`` times
+        ``cam_t_m2c``: what training takes as ``origins``).
     cameras : tuple of Camera
         Each view's camera.
     scene_id : int
@@ -68,14 +69,6 @@ class BopScene:
     im_ids: tuple[int, ...]
     rotations: NDArray[np.float64]
     translations_m: NDArray[np.float64]
-
-    @property
-    def origins_px(self) -> NDArray[np.float64]:
-        """The image ``(u, v)`` of the model's origin in each view (``cam_K`` times
-        ``cam_t_m2c``), pixels, shape (K, 2): what training takes as ``origins``."""
-        return np.array([[c.fx * t[0] / t[2] + c.cx, c.fy * t[1] / t[2] + c.cy]
-                         for c, t in zip(self.cameras, self.translations_m, strict=True)]
-                        ).reshape(-1, 2)
 
 
 def _load_json(path: Path) -> dict[str, Any]:
@@ -162,7 +155,8 @@ def read_bop_scene(scene: str | Path, *, obj_id: int, min_visible: float = 0.1) 
     cams = _load_json(folder / "scene_camera.json")
     info_path = folder / "scene_gt_info.json"
     info = _load_json(info_path)
-    images, poses, boxes, masks, dists, cameras, im_ids, rots, trans = ([] for _ in range(9))
+    images, poses, boxes, masks, dists, cameras, im_ids, rots, trans, origins = (
+        [] for _ in range(10))
     for key in sorted(gt, key=lambda k: int(k) if k.isdigit() else -1):
         if not key.isdigit():
             raise ValueError(f"{folder / 'scene_gt.json'}: image id {key!r} is not a number")
@@ -200,16 +194,16 @@ def read_bop_scene(scene: str | Path, *, obj_id: int, min_visible: float = 0.1) 
             im_ids.append(int(key))
             rots.append(R)
             trans.append(t)
+            origins.append([camera.fx * t[0] / t[2] + camera.cx,
+                            camera.fy * t[1] / t[2] + camera.cy])
     if not images:
         raise ValueError(f"{folder}: no visible annotation of object {obj_id}")
-    read = BopScene(training_set=TrainingSet(images=tuple(images),
-                                             poses=np.array(poses, dtype=np.float64),
-                                             boxes=np.array(boxes), masks=tuple(masks),
-                                             instances=(f"obj{obj_id}",) * len(images),
-                                             distances=np.array(dists)),
-                    cameras=tuple(cameras), scene_id=scene_id, im_ids=tuple(im_ids),
-                    rotations=np.array(rots), translations_m=np.array(trans))
-    return replace(read, training_set=replace(read.training_set, origins=read.origins_px))
+    ts = TrainingSet(images=tuple(images), poses=np.array(poses, dtype=np.float64),
+                     boxes=np.array(boxes), masks=tuple(masks),
+                     instances=(f"obj{obj_id}",) * len(images), distances=np.array(dists),
+                     origins=np.array(origins, dtype=np.float64))
+    return BopScene(training_set=ts, cameras=tuple(cameras), scene_id=scene_id,
+                    im_ids=tuple(im_ids), rotations=np.array(rots), translations_m=np.array(trans))
 
 
 def results_rows(scene_id: int, im_id: int, obj_id: int, score: float,

@@ -176,7 +176,7 @@ def _compass_search(density, frame, xy, theta, weight, start, unit, log_bounds, 
         move = -1
         move_value = best
         for k in range(8):
-            # A unit of 0 holds that axis (the in-plane angle of an upright search).
+            # A unit of 0 holds that axis (rescale_mode keeps the fitted in-plane angle).
             if unit[k // 2] == 0.0:
                 continue
             trial[:] = z
