@@ -23,9 +23,11 @@ def write_markdown(path: str | Path, script: str, argv: list[str] | None, text: 
     atomic_write_text(path, body)
 
 
-def emit(text: str, markdown: str | None, script: str, argv: list[str] | None) -> int:
-    """Print a benchmark's report and, if ``markdown`` names a file, write it there too; 0."""
+def emit(text: str, markdown: str | None, script: str, argv: list[str] | None, *,
+         fenced: bool = True) -> int:
+    """Print a benchmark's report and, if ``markdown`` names a file, write it there too
+    (:func:`write_markdown`); 0."""
     print(text, end="")
     if markdown:
-        write_markdown(markdown, script, argv, text)
+        write_markdown(markdown, script, argv, text, fenced=fenced)
     return 0

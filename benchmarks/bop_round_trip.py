@@ -32,7 +32,7 @@ from pathlib import Path
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
-from _markdown import write_markdown  # noqa: E402
+from _markdown import emit  # noqa: E402
 
 from posevote import PoseEstimator  # noqa: E402
 from posevote.batch import estimate_bop_scene  # noqa: E402
@@ -133,10 +133,7 @@ def main(argv: list[str] | None = None) -> int:
                          f"{np.median(err[:, 2]):+.2f} | {seconds:.3f} |")
     lines += ["", f"Wall time {time.perf_counter() - t0:.0f} s."]
     text = "\n".join(lines) + "\n"
-    print(text, end="")
-    if args.markdown:
-        write_markdown(args.markdown, __file__, argv, text, fenced=False)
-    return 0
+    return emit(text, args.markdown, __file__, argv, fenced=False)
 
 
 if __name__ == "__main__":

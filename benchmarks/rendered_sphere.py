@@ -24,7 +24,7 @@ import tempfile
 
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
-from _markdown import write_markdown  # noqa: E402
+from _markdown import emit  # noqa: E402
 from _settings import parse_settings  # noqa: E402
 
 from posevote.evaluation.sphere import (  # noqa: E402
@@ -59,10 +59,7 @@ def main(argv: list[str] | None = None) -> int:
                              log=lambda m: print(m, file=sys.stderr))
     text = report_text(setup, summary, summary["n_training_views"])
     text += f"\nWall time {summary['wall_seconds']:.0f} s with {args.jobs} processes.\n"
-    print(text, end="")
-    if args.markdown:
-        write_markdown(args.markdown, __file__, argv, text, fenced=False)
-    return 0
+    return emit(text, args.markdown, __file__, argv, fenced=False)
 
 
 if __name__ == "__main__":
