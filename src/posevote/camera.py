@@ -15,7 +15,8 @@ rigid transform ``T_cam_obj`` (frames as in :mod:`posevote.geometry`):
   origins=)``; BOP scenes do), the ray through the origin's image: each
   view's offset of the origin from the box centre, averaged over the views
   near the estimated viewpoint as the box is, turned and scaled with the
-  hypothesis (:func:`posevote.model.density.origin_offset`).
+  hypothesis (:func:`posevote.model.density.origin_offset`); with each
+  view's depth factor too (BOP scenes give it), at the origin's depth.
 
 ``H`` comes from the training set: a known object height, or the training
 camera with each training view's distance (``distance_m``), as the median
@@ -177,18 +178,20 @@ def check_object_height(value: Any) -> float | None:
 
 
 def place(hypothesis: Hypothesis, camera: Camera, *, reference_size_px: float,
-          object_height_m: float | None, anchor: tuple[float, float] | None = None
-          ) -> Hypothesis:
+          object_height_m: float | None, anchor: tuple[float, float] | None = None,
+          depth_factor: float = 1.0) -> Hypothesis:
     """The hypothesis with ``R_cam_obj`` and, given the object's height, ``t_cam_obj``.
 
     ``t_cam_obj`` is the ray through ``anchor`` (the image of the object's
     origin, when the model knows it; default: the box centre, ``position``)
-    at the object's depth.
+    at the object's depth times ``depth_factor`` (the origin's, when the
+    model knows it).
     """
     R = rotation_from_pose(hypothesis.azimuth, hypothesis.elevation, hypothesis.inplane)
     t: tuple[float, float, float] | None = None
     if object_height_m is not None:
-        depth = camera.fy * object_height_m / (hypothesis.scale * reference_size_px)
+        depth = depth_factor * camera.fy * object_height_m / (hypothesis.scale
+                                                              * reference_size_px)
         u, v = hypothesis.position if anchor is None else anchor
         t = ((u - camera.cx) / camera.fx * depth, (v - camera.cy) / camera.fy * depth, depth)
     return dataclasses.replace(hypothesis, R_cam_obj=_rows(R), t_cam_obj=t)
@@ -196,16 +199,18 @@ def place(hypothesis: Hypothesis, camera: Camera, *, reference_size_px: float,
 
 def place_all(hypotheses: Sequence[Hypothesis], camera: Camera | None, *,
               reference_size_px: float, object_height_m: float | None,
-              anchors: Sequence[tuple[float, float] | None] | None = None) -> list[Hypothesis]:
-    """:func:`place` for every hypothesis, each with its ``anchor`` (unchanged without a
-    camera)."""
+              anchors: Sequence[tuple[float, ...] | None] | None = None) -> list[Hypothesis]:
+    """:func:`place` for every hypothesis, each with its anchor, ``(u, v)`` or ``(u, v,
+    depth_factor)`` (unchanged without a camera)."""
     if camera is None:
         return list(hypotheses)
     if not isinstance(camera, Camera):
         raise TypeError(f"camera must be a posevote.camera.Camera, got {type(camera).__name__}")
     points = [None] * len(hypotheses) if anchors is None else list(anchors)
     return [place(h, camera, reference_size_px=reference_size_px,
-                  object_height_m=object_height_m, anchor=a)
+                  object_height_m=object_height_m,
+                  anchor=None if a is None else (a[0], a[1]),
+                  depth_factor=1.0 if a is None or len(a) < 3 else a[2])
             for h, a in zip(hypotheses, points, strict=True)]
 
 

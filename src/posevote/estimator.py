@@ -180,10 +180,14 @@ class PoseEstimator(GroupedParams):
         object_height_m : float, optional
             The object's height in metres (its box height), so that a camera
             can place it in depth (:mod:`posevote.camera`).
-        origins : array_like, shape (K, 2), optional
+        origins : array_like, shape (K, 2) or (K, 3), optional
             The image ``(u, v)`` of the object's origin in each training image
             (a mesh origin projected with the training camera): ``t_cam_obj``
-            then names that point instead of the box centre.
+            then names that point instead of the box centre. A third column is
+            the origin's depth over the depth this model gives the view at
+            its training size (``fy * object_height_m / reference size``:
+            ``read_bop_scene`` works it out), so that an origin off the
+            object's centre along the line of sight is placed at its own depth.
 
         Returns
         -------
@@ -389,14 +393,16 @@ class PoseEstimator(GroupedParams):
                             top_score=max((h.score for h in hyps), default=0.0),
                             viewpoint_scores=scored_viewpoints(probes))
 
-    def _origin(self, hypothesis: Hypothesis) -> tuple[float, float] | None:
-        """The image of the object's origin under a hypothesis (None: the box centre)."""
+    def _origin(self, hypothesis: Hypothesis) -> tuple[float, ...] | None:
+        """The image of the object's origin under a hypothesis, and its depth factor when
+        the model has one (None: the box centre)."""
         offset = origin_offset(self._check_fitted(), hypothesis.azimuth, hypothesis.elevation,
                                kappa=self.viewpoint_kappa_, k1_cutoff=K1_CUTOFF)
         if offset is None:
             return None
-        u, v = hypothesis.position + hypothesis.scale * rotate_points(offset, hypothesis.inplane)
-        return float(u), float(v)
+        u, v = hypothesis.position + hypothesis.scale * rotate_points(offset[:2],
+                                                                       hypothesis.inplane)
+        return (float(u), float(v), *(float(f) for f in offset[2:]))
 
     # -- persistence -------------------------------------------------------------------
     def save(self, path: str | Path) -> None:

@@ -75,12 +75,18 @@ def test_train_estimate_and_write_results(tmp_path, draw):
 def test_the_origins_are_the_translations_projected(tmp_path, draw):
     folder = scene(tmp_path / "000004", draw, (0, 90), distance=2.0)
     read = read_bop_scene(folder, obj_id=1)
-    np.testing.assert_allclose(read.training_set.origins, [[CAMERA.cx, CAMERA.cy]] * 2)
+    # Both at 2 m, the model gives both views that depth: a factor of 1.
+    np.testing.assert_allclose(read.training_set.origins, [[CAMERA.cx, CAMERA.cy, 1.0]] * 2)
     gt = json.loads((folder / "scene_gt.json").read_text())
     gt["1"][0]["cam_t_m2c"] = [100.0, -50.0, 500.0]
     (folder / "scene_gt.json").write_text(json.dumps(gt))
     read = read_bop_scene(folder, obj_id=1)
-    np.testing.assert_allclose(read.training_set.origins[1], [CAMERA.cx + 80.0, CAMERA.cy - 40.0])
+    heights = read.training_set.boxes[:, 3]
+    # At 2 m and 0.5 m, where the model gives each view the depth fy H / R.
+    model_depth = np.median(heights * [2.0, 0.5]) / np.median(heights)
+    np.testing.assert_allclose(read.training_set.origins[1],
+                               [CAMERA.cx + 80.0, CAMERA.cy - 40.0, 0.5 / model_depth])
+    np.testing.assert_allclose(read.training_set.origins[0, 2], 2.0 / model_depth)
     gt["1"][0]["cam_t_m2c"] = [0.0, 0.0, -500.0]
     (folder / "scene_gt.json").write_text(json.dumps(gt))
     with pytest.raises(ValueError, match="image 1, annotation 0: cam_t_m2c puts the object "

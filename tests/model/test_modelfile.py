@@ -46,7 +46,10 @@ def test_view_origins_round_trip_and_are_checked(tmp_path, toy_model):
     np.testing.assert_array_equal(load_model(tmp_path / "m.npz")[0].model.view_origin, origin)
     save_model(tmp_path / "plain.npz", _trained(model), {})
     assert load_model(tmp_path / "plain.npz")[0].model.view_origin is None
-    for bad in (origin[:-1], np.full_like(origin, np.nan)):
+    factor = np.column_stack([origin, np.full(model.n_views, 1.1)])
+    save_model(tmp_path / "deep.npz", _trained(replace(model, view_origin=factor)), {})
+    np.testing.assert_array_equal(load_model(tmp_path / "deep.npz")[0].model.view_origin, factor)
+    for bad in (origin[:-1], np.full_like(origin, np.nan), factor * [1, 1, -1]):
         _rewrite(tmp_path / "m.npz", tmp_path / "bad.npz", view_origin=bad)
         with pytest.raises(ValueError, match="bad.npz: corrupt model file .*inconsistent"):
             load_model(tmp_path / "bad.npz")

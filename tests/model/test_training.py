@@ -138,8 +138,19 @@ def test_origins_name_the_point_t_is_placed_at(synthetic_training, draw):
     np.testing.assert_allclose(plain.t_cam_obj[:2], [(best.position[0] - 63.5) / 400 * depth,
                                                      (best.position[1] - 63.5) / 400 * depth],
                                atol=1e-9)
-    with pytest.raises(ValueError, match=r"origins must have shape \(18, 2\)"):
+    # A depth factor per view: the origin at that share of the object's depth.
+    deep = PoseEstimator().fit(images, az, boxes=boxes, object_height_m=0.1,
+                               origins=np.column_stack([origins, np.full(len(images), 1.25)]))
+    deep.set_params(search__inplane_range_deg=(-30.0, 30.0))
+    far = deep.estimate(turned, camera=camera).best
+    np.testing.assert_allclose(far.t_cam_obj, np.array(best.t_cam_obj) * 1.25, rtol=1e-9)
+    with pytest.raises(ValueError, match=r"origins must have shape \(18, 2\) or \(18, 3\)"):
         PoseEstimator().fit(images, az, boxes=boxes, origins=origins[:3])
+    with pytest.raises(ValueError, match="origins: row 0 has a depth factor 0"):
+        PoseEstimator().fit(images, az, boxes=boxes,
+                            origins=np.column_stack([origins, np.zeros(len(images))]))
+    with pytest.raises(ValueError, match="the model's have 2 columns, the new views' 3"):
+        est.partial_fit(images[:1], az[:1], boxes=boxes[:1], origins=[[1.0, 2.0, 1.0]])
     bad = origins.copy()
     bad[4, 1] = np.nan
     with pytest.raises(ValueError, match="origins: row 4 is not finite"):
@@ -153,8 +164,9 @@ def test_extending_with_origins_equals_training_on_everything(synthetic_training
     from posevote.geometry import box_centre
 
     images, az, boxes = synthetic_training
-    origins = np.array([box_centre(b) for b in boxes]) + np.column_stack(
-        [np.arange(18.0), -np.arange(18.0) / 2])
+    origins = np.column_stack([np.array([box_centre(b) for b in boxes])
+                               + np.column_stack([np.arange(18.0), -np.arange(18.0) / 2]),
+                               1.0 + np.arange(18.0) / 100])
     whole = PoseEstimator().fit(images, az, boxes=boxes, origins=origins)
     grown = PoseEstimator().fit(images[:10], az[:10], boxes=boxes[:10],
                                 origins=origins[:10]).partial_fit(

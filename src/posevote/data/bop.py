@@ -17,9 +17,10 @@ three in millimetres, separated by spaces, ``time`` the seconds spent on the ima
 (the same for all its rows).
 
 Trained on a BOP scene, a model learns where the model's origin lies in each
-view (the training set's ``origins``, ``fit(..., origins=)``), so that its
-``t_cam_obj``, and the results' ``t``, name the origin as the ground truth does
-rather than the box centre (:mod:`posevote.camera`).
+view, across and along the line of sight (the training set's ``origins``,
+``fit(..., origins=)``), so that its ``t_cam_obj``, and the results' ``t``, name
+the origin as the ground truth does rather than the box centre
+(:mod:`posevote.camera`).
 """
 
 from __future__ import annotations
@@ -34,7 +35,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from posevote.camera import Camera
+from posevote.camera import Camera, object_height_from_distances
 from posevote.data.training_set import TrainingSet
 from posevote.geometry import pose_from_rotation
 
@@ -49,9 +50,11 @@ class BopScene:
     Attributes
     ----------
     training_set : TrainingSet
-        Images, poses (radians), boxes, masks, distances (metres) and the
-        image of the model's origin in each view (``cam_K`` times
-        ``cam_t_m2c``: what training takes as ``origins``).
+        Images, poses (radians), boxes, masks, distances (metres) and, as
+        ``origins``, the image of the model's origin in each view (``cam_K``
+        times ``cam_t_m2c``) with its depth factor (the origin's depth over
+        the depth a model of these views gives the view:
+        :meth:`posevote.estimator.PoseEstimator.fit`).
     cameras : tuple of Camera
         Each view's camera.
     scene_id : int
@@ -198,10 +201,16 @@ def read_bop_scene(scene: str | Path, *, obj_id: int, min_visible: float = 0.1) 
                             camera.fy * t[1] / t[2] + camera.cy])
     if not images:
         raise ValueError(f"{folder}: no visible annotation of object {obj_id}")
+    heights, depths = np.array(boxes)[:, 3], np.array(dists)
+    fy = np.array([c.fy for c in cameras])
+    # Each origin's depth over the depth the model gives its view at its training size,
+    # fy * H / R (H from these views, R their median box height: one instance).
+    factor = depths * np.median(heights) / (fy * object_height_from_distances(heights, depths,
+                                                                             cameras))
     ts = TrainingSet(images=tuple(images), poses=np.array(poses, dtype=np.float64),
                      boxes=np.array(boxes), masks=tuple(masks),
-                     instances=(f"obj{obj_id}",) * len(images), distances=np.array(dists),
-                     origins=np.array(origins, dtype=np.float64))
+                     instances=(f"obj{obj_id}",) * len(images), distances=depths,
+                     origins=np.column_stack([np.array(origins, dtype=np.float64), factor]))
     return BopScene(training_set=ts, cameras=tuple(cameras), scene_id=scene_id,
                     im_ids=tuple(im_ids), rotations=np.array(rots), translations_m=np.array(trans))
 

@@ -82,9 +82,10 @@ class TrainingSet:
     distances : ndarray, shape (K,) or (0,)
         Camera distance of each image, metres (NaN where not given; empty
         when the column is absent).
-    origins : ndarray, shape (K, 2) or (0, 2)
-        The image of the object's origin in each image, pixels (empty when
-        not given): ``fit(..., origins=)``.
+    origins : ndarray, shape (K, 2), (K, 3) or (0, 2)
+        The image of the object's origin in each image, pixels, and, from a
+        BOP scene, its depth factor (empty when not given): ``fit(...,
+        origins=)``. ``poses.csv`` holds the first two.
     """
 
     images: tuple[Path, ...]
@@ -375,7 +376,8 @@ def write_poses_csv(training_set: TrainingSet, folder: str | Path) -> Path:
         rel = Path(img).resolve().relative_to(folder.resolve())
         mask_text = "" if mask is None else str(Path(mask).resolve().relative_to(folder.resolve()))
         dist_text = "" if np.isnan(dist) else f"{dist:.6g}"
-        origin_text = "".join(f"{c:.3f}," for c in training_set.origins[k]) if origins else ""
+        origin_text = "".join(f"{c:.3f}," for c in training_set.origins[k, :2]) if origins \
+            else ""
         lines.append(f"{rel},{deg[0]:.4f},{deg[1]:.4f},{deg[2]:.4f},{box_text},{mask_text},"
                      f"{dist_text},{origin_text}{inst},{training_set.category}")
     out = folder / POSES_FILE

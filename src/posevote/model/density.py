@@ -67,10 +67,12 @@ class PoseModel:
     view_neighbour : ndarray of int, shape (K, 2), or None
         Each view's next and previous view on its turntable (-1: none);
         present with ``shift``.
-    view_origin : ndarray, shape (K, 2), or None
+    view_origin : ndarray, shape (K, 2) or (K, 3), or None
         Where the object's origin (the point ``t_cam_obj`` names, e.g. a
         mesh origin) lies in each view, from its reference point, reference
-        pixels, upright; None: not given (``t_cam_obj`` names the box centre).
+        pixels, upright, and optionally its depth over the depth the model
+        gives that view (:meth:`posevote.estimator.PoseEstimator.fit`'s
+        ``origins``); None: not given (``t_cam_obj`` names the box centre).
     """
 
     xy: NDArray[np.float64]
@@ -288,9 +290,10 @@ def viewpoint_weights(model: PoseModel, azimuth: float, elevation: float, *, kap
 def origin_offset(model: PoseModel, azimuth: float, elevation: float, *, kappa: float,
                   k1_cutoff: float) -> NDArray[np.float64] | None:
     """Where the object's origin lies from the reference point at a viewpoint, reference
-    pixels, upright: the views' offsets (``view_origin``) averaged with the pose kernel K1
-    over the views where it reaches ``k1_cutoff`` (the nearest view alone if none), as
-    the box is; None for a model without them."""
+    pixels, upright (and its depth factor, with a third column): the views'
+    ``view_origin`` averaged with the pose kernel K1 over the views where it reaches
+    ``k1_cutoff`` (the nearest view alone if none), as the box is; None for a model
+    without them."""
     if model.view_origin is None:
         return None
     k1 = viewpoint_weights(model, azimuth, elevation, kappa=kappa)

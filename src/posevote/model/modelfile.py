@@ -289,9 +289,11 @@ def _build(path: Path, arrays: dict[str, np.ndarray], header: dict[str, Any]) ->
                      and bool(np.all((neighbour >= -1) & (neighbour < k))))
     origin = arrays.get("view_origin")
     if origin is not None:
-        shapes_ok = (shapes_ok and origin.shape == (k, 2)
+        shapes_ok = (shapes_ok and origin.ndim == 2 and origin.shape[0] == k
+                     and origin.shape[1] in (2, 3)
                      and np.issubdtype(origin.dtype, np.number)
-                     and bool(np.all(np.isfinite(origin))))
+                     and bool(np.all(np.isfinite(origin)))
+                     and bool(np.all(origin[:, 2:] > 0)))
     if not shapes_ok:
         raise ValueError(f"{path}: corrupt model file (inconsistent array shapes)")
     for name in ("xy", "theta", "weight", "view_azimuth", "view_elevation", "view_box"):

@@ -252,16 +252,22 @@ def _extract(images: list[Any], poses: ArrayLike, boxes: ArrayLike | None,
 
 
 def _check_origins(origins: ArrayLike, k: int) -> NDArray[np.float64]:
-    """``origins`` as a (K, 2) array of finite pixels, or a ValueError naming the row."""
+    """``origins`` as a (K, 2) or (K, 3) array of finite numbers (the third positive), or a
+    ValueError naming the row."""
     try:
         arr = np.asarray(origins, dtype=np.float64)
     except (TypeError, ValueError):
-        raise ValueError("origins must be an array of numbers, shape (K, 2)") from None
-    if arr.shape != (k, 2):
-        raise ValueError(f"origins must have shape ({k}, 2) for {k} images, got {arr.shape}")
+        raise ValueError("origins must be an array of numbers, shape (K, 2) or (K, 3)") from None
+    if arr.ndim != 2 or arr.shape[0] != k or arr.shape[1] not in (2, 3):
+        raise ValueError(f"origins must have shape ({k}, 2) or ({k}, 3) for {k} images, got "
+                         f"{arr.shape}")
     if not np.all(np.isfinite(arr)):
         row = int(np.flatnonzero(~np.all(np.isfinite(arr), axis=1))[0])
         raise ValueError(f"origins: row {row} is not finite ({arr[row].tolist()})")
+    if arr.shape[1] == 3 and not np.all(arr[:, 2] > 0):
+        row = int(np.flatnonzero(arr[:, 2] <= 0)[0])
+        raise ValueError(f"origins: row {row} has a depth factor {arr[row, 2]:g}; it must be "
+                         "positive")
     return arr
 
 
@@ -285,10 +291,11 @@ def _pool(views: _Views, *, category: str, kernel: KernelOptions, prune: Pruning
                         reference_size=reference, category=category,
                         instance_size=inst_size.tolist())
     if views.origins is not None:
-        # In the features' frame: from the reference point, upright, in reference pixels.
-        model = replace(model, view_origin=np.array([
-            rotate_points(views.origins[k] - centres[k], -pose_arr[k, 2]) / scales[k]
-            for k in range(len(feats))]).reshape(-1, 2))
+        # In the features' frame: from the reference point, upright, in reference pixels
+        # (a depth factor, if given, as it is).
+        offsets = np.array([rotate_points(views.origins[k, :2] - centres[k], -pose_arr[k, 2])
+                            / scales[k] for k in range(len(feats))]).reshape(-1, 2)
+        model = replace(model, view_origin=np.hstack([offsets, views.origins[:, 2:]]))
     if crops is not None:
         neighbours = turntable_neighbours(model.view_azimuth, model.view_elevation,
                                           model.view_instance)
@@ -340,6 +347,10 @@ def extend_model(trained: TrainedModel, images: Sequence[str | Path | NDArray], 
         raise ValueError("origins: give them for the new views exactly when the model was "
                          "fitted with them" + (" (it was)" if origins is None else
                                                " (it was not)"))
+    if origins is not None and full.view_origin is not None \
+            and np.shape(origins)[-1] != full.view_origin.shape[1]:
+        raise ValueError(f"origins: the model's have {full.view_origin.shape[1]} columns, the "
+                         f"new views' {np.shape(origins)[-1]}")
     if isinstance(images, (str, Path)):
         raise TypeError(f"images must be a sequence of image paths or arrays, got the single "
                         f"path {str(images)!r}")
@@ -360,6 +371,7 @@ def extend_model(trained: TrainedModel, images: Sequence[str | Path | NDArray], 
                    poses=np.vstack([old_poses, new.poses]),
                    names=[full.instance_names[i] for i in full.view_instance] + new.names,
                    origins=None if full.view_origin is None or new.origins is None else np.vstack(
-                       [full.view_origin * size[full.view_instance][:, None], new.origins]))
+                       [np.hstack([full.view_origin[:, :2] * size[full.view_instance][:, None],
+                                   full.view_origin[:, 2:]]), new.origins]))
     return _pool(views, category=full.category, kernel=kernel, prune=prune,
                  height=trained.object_height_m)
