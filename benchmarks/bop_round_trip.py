@@ -5,8 +5,8 @@ every 20 degrees at elevations -30 to 60) and ``--images`` test views at
 random azimuths and elevations are written as two BOP scenes, with the
 renderer's camera and, as ``cam_t_m2c``, where the mesh's origin lies in the
 camera frame. The training scene is read back and trained on (``default``
-preset, the object's height from the scene's distances, the origin's image in
-each view), each test image is estimated with its camera and the results CSV
+preset, the object's height from the scene's distances, the origin's image and
+depth factor in each view), each test image is estimated with its camera and the results CSV
 is written as ``posevote bop`` writes it; the CSV is then read and scored
 against the test scene's ground truth: the geodesic rotation error and the
 translation error as a share of the depth. The same with a model trained
