@@ -386,7 +386,8 @@ class PoseEstimator(GroupedParams):
         kept_hyps = with_probabilities([h for h in hyps if h.score > self.min_score], probes)
         kept = tuple(place_all(kept_hyps, camera, reference_size_px=model.reference_size,
                                object_height_m=self.object_height_m_,
-                               anchors=[self._origin(h) for h in kept_hyps]))
+                               anchors=None if camera is None
+                               else [self._origin(h) for h in kept_hyps]))
         return PoseEstimate(found=bool(kept), best=kept[0] if kept else None, modes=kept,
                             n_test_features=len(feats), seconds=time.perf_counter() - start,
                             instance=instance if kept else "", instance_margin=margin,
