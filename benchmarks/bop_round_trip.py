@@ -1,6 +1,6 @@
 """A BOP round trip on rendered views (issue 28): written, read back, trained, estimated, scored.
 
-The rendered sphere's training views (pybullet's r2d2 on black, azimuth
+The rendered sphere's training views (pybullet's r2d2, or ``--mesh``, on black, azimuth
 every 20 degrees at elevations -30 to 60) and ``--images`` test views at
 random azimuths and elevations are written as two BOP scenes, with the
 renderer's camera and, as ``cam_t_m2c``, where the mesh's origin lies in the
@@ -14,7 +14,8 @@ without the origins (``t`` then names the box centre) shows what they give.
 
 Usage::
 
-    python benchmarks/bop_round_trip.py [--images 40] [--seed 0] [--out DIR] [--markdown FILE]
+    python benchmarks/bop_round_trip.py [--mesh r2d2.urdf] [--images 40] [--seed 0] [--out DIR]
+        [--markdown FILE]
 """
 
 from __future__ import annotations
@@ -42,14 +43,12 @@ from posevote.evaluation.rendering import MESHES, render_focal, render_turntable
 from posevote.evaluation.sphere import AZIMUTH_STEP_DEG, ELEVATIONS_DEG, SIZE  # noqa: E402
 from posevote.geometry import rotation_angle, rotation_from_pose  # noqa: E402
 
-MESH = "r2d2.urdf"
 
-
-def _render(azimuths_rad: list[float], elevation_deg: float) -> list:
+def _render(azimuths_rad: list[float], elevation_deg: float, mesh: str) -> list:
     # pybullet prints its build time on stdout when it connects.
     with contextlib.redirect_stdout(io.StringIO()):
         return render_turntable(np.asarray(azimuths_rad), size=SIZE, elevation_deg=elevation_deg,
-                                distance=None, mesh=MESH, base_euler=MESHES[MESH])
+                                distance=None, mesh=mesh, base_euler=MESHES[mesh])
 
 
 def _write(folder: Path, views: list, elevations: list[float], camera: Camera) -> Path:
@@ -78,6 +77,7 @@ def _score(csv_path: Path, truth: list) -> tuple[np.ndarray, np.ndarray]:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--mesh", default="r2d2.urdf", choices=sorted(MESHES))
     ap.add_argument("--images", type=int, default=40)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", help="folder for the scenes and CSVs (default: a temporary one)")
@@ -93,13 +93,13 @@ def main(argv: list[str] | None = None) -> int:
         out = Path(args.out or tmp)
         train_views, train_els = [], []
         for el in ELEVATIONS_DEG:
-            views = _render(list(np.radians(np.arange(0, 360, AZIMUTH_STEP_DEG))), el)
+            views = _render(list(np.radians(np.arange(0, 360, AZIMUTH_STEP_DEG))), el, args.mesh)
             train_views += views
             train_els += [el] * len(views)
         test_views, test_els = [], []
         for _ in range(args.images):
             el = float(rng.uniform(min(ELEVATIONS_DEG), max(ELEVATIONS_DEG)))
-            test_views += _render([float(rng.uniform(0.0, 2 * np.pi))], el)
+            test_views += _render([float(rng.uniform(0.0, 2 * np.pi))], el, args.mesh)
             test_els.append(el)
         train_scene = _write(out / "train" / "000001", train_views, train_els, camera)
         test_scene = _write(out / "test" / "000002", test_views, test_els, camera)
@@ -108,7 +108,7 @@ def main(argv: list[str] | None = None) -> int:
         read = read_bop_scene(train_scene, obj_id=1)
         ts = read.training_set
         height = ts.object_height_m(read.cameras)
-        lines = [f"BOP round trip, {MESH}: {len(ts)} training views written and read back, "
+        lines = [f"BOP round trip, {args.mesh}: {len(ts)} training views written and read back, "
                  f"{args.images} test views (random azimuth, elevation "
                  f"{min(ELEVATIONS_DEG):g} to {max(ELEVATIONS_DEG):g} deg, on black), "
                  f"`default` preset, seed {args.seed}", "",
