@@ -199,9 +199,10 @@ def place(hypothesis: Hypothesis, camera: Camera, *, reference_size_px: float,
 
 def place_all(hypotheses: Sequence[Hypothesis], camera: Camera | None, *,
               reference_size_px: float, object_height_m: float | None,
-              anchors: Sequence[tuple[float, ...] | None] | None = None) -> list[Hypothesis]:
-    """:func:`place` for every hypothesis, each with its anchor, ``(u, v)`` or ``(u, v,
-    depth_factor)`` (unchanged without a camera)."""
+              anchors: Sequence[tuple[float, float, float] | None] | None = None
+              ) -> list[Hypothesis]:
+    """:func:`place` for every hypothesis, each with its anchor, ``(u, v, depth_factor)``
+    (unchanged without a camera)."""
     if camera is None:
         return list(hypotheses)
     if not isinstance(camera, Camera):
@@ -210,7 +211,7 @@ def place_all(hypotheses: Sequence[Hypothesis], camera: Camera | None, *,
     return [place(h, camera, reference_size_px=reference_size_px,
                   object_height_m=object_height_m,
                   anchor=None if a is None else (a[0], a[1]),
-                  depth_factor=1.0 if a is None or len(a) < 3 else a[2])
+                  depth_factor=1.0 if a is None else a[2])
             for h, a in zip(hypotheses, points, strict=True)]
 
 

@@ -394,16 +394,16 @@ class PoseEstimator(GroupedParams):
                             top_score=max((h.score for h in hyps), default=0.0),
                             viewpoint_scores=scored_viewpoints(probes))
 
-    def _origin(self, hypothesis: Hypothesis) -> tuple[float, ...] | None:
-        """The image of the object's origin under a hypothesis, and its depth factor when
-        the model has one (None: the box centre)."""
+    def _origin(self, hypothesis: Hypothesis) -> tuple[float, float, float] | None:
+        """The image of the object's origin under a hypothesis and its depth factor (None:
+        the box centre at the object's depth)."""
         offset = origin_offset(self._check_fitted(), hypothesis.azimuth, hypothesis.elevation,
                                kappa=self.viewpoint_kappa_, k1_cutoff=K1_CUTOFF)
         if offset is None:
             return None
         u, v = hypothesis.position + hypothesis.scale * rotate_points(offset[:2],
                                                                        hypothesis.inplane)
-        return (float(u), float(v), *(float(f) for f in offset[2:]))
+        return float(u), float(v), float(offset[2])
 
     # -- persistence -------------------------------------------------------------------
     def save(self, path: str | Path) -> None:

@@ -289,18 +289,20 @@ def viewpoint_weights(model: PoseModel, azimuth: float, elevation: float, *, kap
 
 def origin_offset(model: PoseModel, azimuth: float, elevation: float, *, kappa: float,
                   k1_cutoff: float) -> NDArray[np.float64] | None:
-    """Where the object's origin lies from the reference point at a viewpoint, reference
-    pixels, upright (and its depth factor, with a third column): the views'
-    ``view_origin`` averaged with the pose kernel K1 over the views where it reaches
-    ``k1_cutoff`` (the nearest view alone if none), as the box is; None for a model
-    without them."""
+    """Where the object's origin lies from the reference point at a viewpoint, shape (3,):
+    the offset in reference pixels, upright, and the depth factor (1 where the model has
+    none): the views' ``view_origin`` averaged with the pose kernel K1 over the views
+    where it reaches ``k1_cutoff`` (the nearest view alone if none), as the box is; None
+    for a model without them."""
     if model.view_origin is None:
         return None
+    origin = model.view_origin if model.view_origin.shape[1] == 3 else np.column_stack(
+        [model.view_origin, np.ones(model.n_views)])
     k1 = viewpoint_weights(model, azimuth, elevation, kappa=kappa)
     views = np.flatnonzero(k1 >= k1_cutoff)
     if len(views) == 0 or not k1[views].sum() > 0:
-        return model.view_origin[int(np.argmax(k1))].copy()
-    return np.average(model.view_origin[views], axis=0, weights=k1[views])
+        return origin[int(np.argmax(k1))].copy()
+    return np.average(origin[views], axis=0, weights=k1[views])
 
 
 def image_density(features: EdgeFeatures, x_xy: NDArray[np.float64], x_theta: NDArray[np.float64],

@@ -21,8 +21,14 @@ from numpy.typing import ArrayLike, NDArray
 from posevote._parallel import thread_map
 from posevote.camera import check_object_height
 from posevote.data.images import load_image, read_mask
-from posevote.features.edges import EdgeFeatures, EdgeOptions, box_mask, extract_edges
-from posevote.geometry import box_centre, rotate_points
+from posevote.features.edges import (
+    EdgeFeatures,
+    EdgeOptions,
+    box_mask,
+    extract_edges,
+    normalize_features,
+)
+from posevote.geometry import box_centre
 from posevote.model.appearance import AppearanceCollector, AppearanceModel
 from posevote.model.density import PoseModel, build_model, viewpoint_kappa
 from posevote.model.kernels import ORIENTATION_KAPPA, KernelOptions
@@ -293,8 +299,10 @@ def _pool(views: _Views, *, category: str, kernel: KernelOptions, prune: Pruning
     if views.origins is not None:
         # In the features' frame: from the reference point, upright, in reference pixels
         # (a depth factor, if given, as it is).
-        offsets = np.array([rotate_points(views.origins[k, :2] - centres[k], -pose_arr[k, 2])
-                            / scales[k] for k in range(len(feats))]).reshape(-1, 2)
+        offsets = np.vstack([normalize_features(
+            EdgeFeatures(xy=views.origins[k:k + 1, :2], theta=np.zeros(1)), center=centres[k],
+            scale=float(scales[k]), inplane=float(pose_arr[k, 2])).xy
+            for k in range(len(feats))])
         model = replace(model, view_origin=np.hstack([offsets, views.origins[:, 2:]]))
     if crops is not None:
         neighbours = turntable_neighbours(model.view_azimuth, model.view_elevation,
