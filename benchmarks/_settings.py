@@ -12,11 +12,16 @@ from typing import Any
 
 
 def parse_settings(items: Iterable[str]) -> dict[str, Any]:
-    """``["a=1", "search.b=(2, 3)"]`` -> ``{"a": 1, "search__b": (2, 3)}`` (Python literals)."""
+    """``["a=1", "search.b=(2, 3)", "search.c=d"]`` -> ``{"a": 1, "search__b": (2, 3),
+    "search__c": "d"}`` (Python literals; anything else a string)."""
     out: dict[str, Any] = {}
     for item in items:
         name, sep, value = item.partition("=")
         if not sep:
             raise ValueError(f"expected NAME=VALUE, got {item!r}")
-        out[name.strip().replace(".", "__")] = ast.literal_eval(value)
+        try:
+            parsed = ast.literal_eval(value)
+        except (ValueError, SyntaxError):
+            parsed = value.strip()          # a bare word: a string (search.rerank=template)
+        out[name.strip().replace(".", "__")] = parsed
     return out

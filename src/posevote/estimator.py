@@ -34,6 +34,7 @@ from posevote.inference.search import (
     probe,
     search_maps,
 )
+from posevote.inference.templates import rerank_by_template
 from posevote.inference.verification import verify
 from posevote.model.appearance import AppearanceModel, AppearanceOptions
 from posevote.model.density import PoseModel, origin_offset
@@ -281,8 +282,7 @@ class PoseEstimator(GroupedParams):
         feats, img = self._read(image, channels)
         setup = self.setup()
         maps = search_maps(feats, img.shape, model, setup)
-        probes = rerank_by_coverage(probe(model, maps, setup, progress=progress), model, maps, setup)
-        return probes, feats
+        return self._rerank(probe(model, maps, setup, progress=progress), maps, img), feats
 
     def estimate(self, image: ImageLike, *, channels: str = "rgb",
                  camera: Camera | None = None) -> PoseEstimate:
@@ -346,8 +346,7 @@ class PoseEstimator(GroupedParams):
         # The verification only ranks the first search's probes and moves their
         # boxes itself: they need no polish unless it finds nothing.
         verifying = self.appearance is not None and bool(self.appearance.candidates)
-        probes = rerank_by_coverage(probe(model, full, setup, polish=not verifying), model, full,
-                                    setup)
+        probes = self._rerank(probe(model, full, setup, polish=not verifying), full, img)
         verified_box = None
         located = None
         # The descriptors read single precision: the image converted once, not per box.
@@ -358,7 +357,7 @@ class PoseEstimator(GroupedParams):
             if located is not None:
                 feats, maps, probes, verified_box = located
         if verifying and located is None:
-            probes = rerank_by_coverage(probe(model, full, setup), model, full, setup)
+            probes = self._rerank(probe(model, full, setup), full, img)
         modes = find_modes(probes, max_modes=self.max_modes)
         hyps = [refine_mode(probes, v, fit=self.fitting, radius_steps=FIT_RADIUS_STEPS)
                 for v in modes]
@@ -393,6 +392,16 @@ class PoseEstimator(GroupedParams):
                             instance=instance if kept else "", instance_margin=margin,
                             top_score=max((h.score for h in hyps), default=0.0),
                             viewpoint_scores=scored_viewpoints(probes))
+
+    def _rerank(self, probes: ProbeSet, maps: TestMaps | Sequence[TestMaps],
+                image: NDArray[np.float64]) -> ProbeSet:
+        """The best probes re-ranked as ``search.rerank`` says."""
+        model = self._check_fitted()
+        if self.search.rerank == "coverage":
+            return rerank_by_coverage(probes, model, maps, self.setup())
+        if self.search.rerank == "template":
+            return rerank_by_template(probes, model, image)
+        return probes
 
     def _origin(self, hypothesis: Hypothesis) -> tuple[float, float, float] | None:
         """The image of the object's origin under a hypothesis and its depth factor (None:

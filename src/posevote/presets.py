@@ -84,7 +84,7 @@ PRESETS: dict[str, Preset] = {p.name: p for p in (
         params={"search": SearchOptions(inplane_range_deg=(-30.0, 30.0), inplane_step_deg=5.0,
                                         scale_range=(0.7, 1.3), scale_steps=7,
                                         object_kernel=True, chance_correction=True,
-                                        density_cap=0.5),
+                                        density_cap=0.5, rerank="template"),
                 "local_refinement": True}),
     Preset(
         name="turntable",

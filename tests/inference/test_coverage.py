@@ -61,12 +61,10 @@ def test_rerank_multiplies_the_best_probes_and_keeps_the_order_of_the_rest(fitte
     image = draw(np.radians(100))
     feats = extract_edges(image, est.edges, training=False)
     options = SearchOptions(scale_range=(0.9, 1.1), scale_steps=2, object_kernel=True,
-                            coverage=True)
+                            rerank="coverage")
     setup = replace(est.setup(), options=options)
     maps = search_maps(feats, image.shape, est.model_, setup)
     probes = probe(est.model_, maps, setup)
-    off = rerank_by_coverage(probes, est.model_, maps, replace(setup, options=SearchOptions()))
-    assert off is probes
     ranked = rerank_by_coverage(probes, est.model_, maps, setup)
     before, after = probes.score.ravel(), ranked.score.ravel()
     order = np.argsort(-before, kind="stable")
@@ -81,6 +79,8 @@ def test_rerank_multiplies_the_best_probes_and_keeps_the_order_of_the_rest(fitte
     assert abs(np.degrees(ranked.azimuth[best[0]]) - 100) <= 20
 
 
-def test_coverage_option_is_a_flag():
-    with pytest.raises(ValueError, match="coverage"):
-        SearchOptions(coverage="yes")
+def test_rerank_option_names_a_reranking():
+    with pytest.raises(ValueError, match="rerank"):
+        SearchOptions(rerank="yes")
+    with pytest.raises(ValueError, match="rerank"):
+        SearchOptions(rerank=True)

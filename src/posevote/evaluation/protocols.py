@@ -134,7 +134,7 @@ _ABLATION = (
 _APPEARANCE = "HOG verification of 40 candidates, box regression, nearest-view viewpoint"
 _EPFL_ROWS = (
     Row(name="paper: weights + fitting",
-        params={"appearance": None, "recognition": None, "search__coverage": True},
+        params={"appearance": None, "recognition": None, "search__rerank": "coverage"},
         note="edges alone, the paper's row of Fig. 7: the category preset's search without "
              "its appearance stages and without the instance model, its best probes "
              "re-ranked by coverage (SearchOptions.coverage) instead of by the HOG "

@@ -100,11 +100,8 @@ def rerank_by_coverage(probes: ProbeSet, model: PoseModel, maps: TestMaps | Sequ
     Returns
     -------
     ProbeSet
-        The same probes with re-ranked scores; as they were when
-        ``setup.options.coverage`` is off.
+        The same probes with re-ranked scores.
     """
-    if not setup.options.coverage:
-        return probes
     score = probes.score
     best = np.argsort(-score.ravel(), kind="stable")[:COVERAGE_CANDIDATES]
     best = best[score.ravel()[best] > 0]

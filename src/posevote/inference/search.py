@@ -45,6 +45,8 @@ VOTE_CANDIDATES = 2
 #: before anything is allocated.
 MAX_PROBES = 2_000_000
 MAX_GRID_STEPS = 400
+#: The re-rankings of the best probes ``SearchOptions.rerank`` names.
+RERANKINGS = (None, "coverage", "template")
 #: Width of the local chance level, in search kernel widths (``chance_correction``):
 #: chosen on the five epfl-cv folds among 2, 4, 6 and 8 (docs/DEFAULTS.md).
 CHANCE_WIDTH = 4.0
@@ -111,10 +113,12 @@ class SearchOptions(Options):
         At most about this many training features per viewpoint take part in
         the grid search (an even subset), for pooled category models; the
         refinements read all of them.
-    coverage : bool, default False
-        Re-rank the best probes by the share of the test edges in their box
-        that they explain (:mod:`posevote.inference.coverage`; beyond the
-        paper).
+    rerank : {None, "coverage", "template"}, default None
+        Re-rank the search's best probes (beyond the paper): ``"coverage"``
+        by the share of the test edges in their box that they explain
+        (:mod:`posevote.inference.coverage`), ``"template"`` by how well the
+        image matches the nearest training view's grey levels there
+        (:mod:`posevote.inference.templates`); None: by their score alone.
     """
 
     viewpoint_step_deg: float | None = None
@@ -127,7 +131,7 @@ class SearchOptions(Options):
     chance_correction: bool = False
     density_cap: float | None = None
     max_search_features: int | None = None
-    coverage: bool = False
+    rerank: str | None = None
 
     def __post_init__(self) -> None:
         self._number("viewpoint_step_deg", low=0.1, high=180.0, optional=True)
@@ -141,8 +145,10 @@ class SearchOptions(Options):
             self._fail("scale_range", "(low, high) with 0.05 <= low <= high <= 20",
                        self.scale_range)
         self._number("scale_steps", low=1, high=MAX_GRID_STEPS, integer=True)
-        for name in ("object_kernel", "chance_correction", "coverage"):
+        for name in ("object_kernel", "chance_correction"):
             self._flag(name)
+        if self.rerank not in RERANKINGS:
+            self._fail("rerank", f"one of {', '.join(map(repr, RERANKINGS))}", self.rerank)
         self._number("density_cap", low=0.0, high=1e6, low_open=True, optional=True)
         self._number("max_search_features", low=1, high=10_000_000, integer=True,
                      optional=True)

@@ -73,6 +73,12 @@ class PoseModel:
         pixels, upright, and optionally its depth over the depth the model
         gives that view (:meth:`posevote.estimator.PoseEstimator.fit`'s
         ``origins``); None: not given (``t_cam_obj`` names the box centre).
+    view_template : ndarray of float16, shape (K, T, T), or None
+        Each view's grey template, upright, NaN outside the object
+        (:mod:`posevote.model.templates`); None: not learnt.
+    view_template_cell : ndarray, shape (K,), or None
+        Reference pixels per template pixel of each view; present with
+        ``view_template``.
     """
 
     xy: NDArray[np.float64]
@@ -90,6 +96,8 @@ class PoseModel:
     shift: NDArray[np.float64] | None = None
     view_neighbour: NDArray[np.int64] | None = None
     view_origin: NDArray[np.float64] | None = None
+    view_template: NDArray[np.float16] | None = None
+    view_template_cell: NDArray[np.float64] | None = None
 
     def size_of(self, instance: int) -> float:
         """The training size of an instance relative to the reference (1.0 if unknown)."""
@@ -189,7 +197,11 @@ class PoseModel:
                       view_neighbour=None if self.view_neighbour is None else np.where(
                           self.view_neighbour[views] >= 0,
                           local[np.maximum(self.view_neighbour[views], 0)], -1),
-                      view_origin=None if self.view_origin is None else self.view_origin[views])
+                      view_origin=None if self.view_origin is None else self.view_origin[views],
+                      view_template=None if self.view_template is None
+                      else self.view_template[views],
+                      view_template_cell=None if self.view_template_cell is None
+                      else self.view_template_cell[views])
         return PoseModel(**fields)
 
     def with_weights(self, weight: NDArray[np.float64]) -> PoseModel:

@@ -15,10 +15,13 @@ Arrays: the features (``xy``, ``theta``, ``view``, ``weight``) and views
 the searched model; ``full_*`` feature arrays when it is pruned (the full
 model, for recognition and refinement); ``shift`` and ``view_neighbour``
 for morphed models; ``view_origin`` when training gave the object's origin;
+``view_template`` (float16, NaN outside the object) and
+``view_template_cell``, the views' grey templates;
 ``view_descriptor``, ``objectness`` and ``box_regressor`` for the
-appearance stages. Version 4 is the only version read: files of versions
-1-2 name parameters that no longer exist, and version 3's appearance
-options hold a field that version 4 dropped; both must be retrained.
+appearance stages. Version 5 is the only version read: files of versions
+1-2 name parameters that no longer exist, version 3's appearance options
+hold a field that version 4 dropped, and version 4's search options name
+``coverage`` (now ``rerank``) and hold no templates; all must be retrained.
 """
 
 from __future__ import annotations
@@ -38,7 +41,7 @@ from posevote.model.density import PoseModel
 from posevote.model.training import TrainedModel
 
 FORMAT_NAME = "posevote-model"
-FORMAT_VERSION = 4
+FORMAT_VERSION = 5
 
 #: A model file larger than this (bytes) is refused before it is read.
 MAX_MODEL_BYTES = 2 << 30
@@ -51,7 +54,7 @@ _FEATURE_ARRAYS = ("xy", "theta", "view", "weight")
 _ARRAYS = (*_FEATURE_ARRAYS, "view_azimuth", "view_elevation", "view_box", "view_instance")
 _MORPH_ARRAYS = ("shift", "view_neighbour")
 #: Optional per-view arrays, written when the model has them.
-_VIEW_OPTIONAL = ("view_origin",)
+_VIEW_OPTIONAL = ("view_origin", "view_template", "view_template_cell")
 
 
 def save_model(path: str | Path, trained: TrainedModel, params: dict[str, Any], *,
@@ -294,6 +297,16 @@ def _build(path: Path, arrays: dict[str, np.ndarray], header: dict[str, Any]) ->
                      and np.issubdtype(origin.dtype, np.number)
                      and bool(np.all(np.isfinite(origin)))
                      and bool(np.all(origin[:, 2:] > 0)))
+    template, cell = arrays.get("view_template"), arrays.get("view_template_cell")
+    if template is not None or cell is not None:
+        # Together, one square template and one positive pixel size per view.
+        shapes_ok = (shapes_ok and template is not None and cell is not None
+                     and template.ndim == 3 and template.shape[0] == k
+                     and template.shape[1] == template.shape[2]
+                     and np.issubdtype(template.dtype, np.floating)
+                     and not np.any(np.isinf(template))
+                     and cell.shape == (k,) and np.issubdtype(cell.dtype, np.number)
+                     and bool(np.all(np.isfinite(cell) & (cell > 0))))
     if not shapes_ok:
         raise ValueError(f"{path}: corrupt model file (inconsistent array shapes)")
     for name in ("xy", "theta", "weight", "view_azimuth", "view_elevation", "view_box"):
@@ -328,4 +341,6 @@ def _build(path: Path, arrays: dict[str, np.ndarray], header: dict[str, Any]) ->
         shift=None if shift is None else shift.astype(np.float64),
         view_neighbour=None if neighbour is None else neighbour.astype(np.int64),
         view_origin=None if origin is None else origin.astype(np.float64),
+        view_template=None if template is None else template.astype(np.float16),
+        view_template_cell=None if cell is None else cell.astype(np.float64),
     )

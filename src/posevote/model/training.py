@@ -34,6 +34,7 @@ from posevote.model.density import PoseModel, build_model, viewpoint_kappa
 from posevote.model.kernels import ORIENTATION_KAPPA, KernelOptions
 from posevote.model.morph import ViewCrops, turntable_neighbours, view_shifts
 from posevote.model.pruning import PruningPreset, prune_model
+from posevote.model.templates import TEMPLATE_SIDE, view_template
 from posevote.model.weights import feature_weights
 
 
@@ -206,6 +207,8 @@ class _Views:
     collector: AppearanceCollector | None = None
     crops: ViewCrops | None = None
     origins: NDArray[np.float64] | None = None
+    templates: NDArray[np.float16] | None = None
+    template_cells: NDArray[np.float64] | None = None
 
 
 def _extract(images: list[Any], poses: ArrayLike, boxes: ArrayLike | None,
@@ -218,12 +221,14 @@ def _extract(images: list[Any], poses: ArrayLike, boxes: ArrayLike | None,
     k = len(images)
     origin_arr = None if origins is None else _check_origins(origins, k)
     feats, centres, sizes = [], np.zeros((k, 2)), np.zeros((k, 2))
+    templates = np.empty((k, TEMPLATE_SIDE, TEMPLATE_SIDE), dtype=np.float16)
+    cells = np.zeros(k)
     collector = AppearanceCollector(box_arr) if appearance else None
     crops = ViewCrops() if morph else None
 
     def read(i: int) -> tuple[NDArray[np.float64], NDArray[np.floating], NDArray[np.float64],
-                              EdgeFeatures]:
-        """Image ``i``, its box and its edges inside the box (and mask)."""
+                              EdgeFeatures, tuple[NDArray[np.float16], float]]:
+        """Image ``i``, its box, its edges inside the box (and mask) and its template."""
         image = images[i]
         label = str(image) if isinstance(image, (str, Path)) else f"images[{i}]"
         img = load_image(image, name=label, channels=channels)
@@ -240,11 +245,14 @@ def _extract(images: list[Any], poses: ArrayLike, boxes: ArrayLike | None,
             raise ValueError(f"{label}: no edges found on the object; check the box/mask "
                              "or lower EdgeOptions.thresholds")
         # The descriptors read single-precision crops: converted once, in the thread.
-        return img, img.astype(np.float32) if appearance else img, box, f
+        return (img, img.astype(np.float32) if appearance else img, box, f,
+                view_template(img, box, mask, float(pose_arr[i, 2])))
 
     # Images are read in threads; what draws random boxes runs here, in order.
-    for i, (img, img32, box, f) in enumerate(thread_map(read, range(k), n_threads)):
+    for i, (img, img32, box, f, (template, cell)) in enumerate(thread_map(read, range(k),
+                                                                          n_threads)):
         feats.append(f)
+        templates[i], cells[i] = template, cell
         if collector is not None:
             collector.add(img32, box.tolist(), float(pose_arr[i, 0]))
         if crops is not None:
@@ -254,7 +262,8 @@ def _extract(images: list[Any], poses: ArrayLike, boxes: ArrayLike | None,
         if progress is not None:
             progress(1)
     return _Views(feats=feats, centres=centres, sizes=sizes, poses=pose_arr, names=names,
-                  collector=collector, crops=crops, origins=origin_arr)
+                  collector=collector, crops=crops, origins=origin_arr, templates=templates,
+                  template_cells=cells)
 
 
 def _check_origins(origins: ArrayLike, k: int) -> NDArray[np.float64]:
@@ -304,6 +313,10 @@ def _pool(views: _Views, *, category: str, kernel: KernelOptions, prune: Pruning
             scale=float(scales[k]), inplane=float(pose_arr[k, 2])).xy
             for k in range(len(feats))])
         model = replace(model, view_origin=np.hstack([offsets, views.origins[:, 2:]]))
+    if views.templates is not None and views.template_cells is not None:
+        # Template pixels in reference pixels, as the features.
+        model = replace(model, view_template=views.templates,
+                        view_template_cell=views.template_cells / scales)
     if crops is not None:
         neighbours = turntable_neighbours(model.view_azimuth, model.view_elevation,
                                           model.view_instance)
@@ -380,6 +393,11 @@ def extend_model(trained: TrainedModel, images: Sequence[str | Path | NDArray], 
                    names=[full.instance_names[i] for i in full.view_instance] + new.names,
                    origins=None if full.view_origin is None or new.origins is None else np.vstack(
                        [np.hstack([full.view_origin[:, :2] * size[full.view_instance][:, None],
-                                   full.view_origin[:, 2:]]), new.origins]))
+                                   full.view_origin[:, 2:]]), new.origins]),
+                   templates=None if full.view_template is None or new.templates is None
+                   else np.concatenate([full.view_template, new.templates]),
+                   template_cells=None if full.view_template_cell is None
+                   or new.template_cells is None else np.concatenate(
+                       [full.view_template_cell * size[full.view_instance], new.template_cells]))
     return _pool(views, category=full.category, kernel=kernel, prune=prune,
                  height=trained.object_height_m)

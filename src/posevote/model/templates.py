@@ -1,0 +1,79 @@
+"""Each training view's grey appearance, upright and at a fixed size, for the template re-ranking.
+
+Beyond the paper. The voting search ranks probes by the edges they explain;
+on dense textures the clutter explains as many edges as the object does. The
+object's own grey levels tell them apart: each training view keeps a small
+template of its box (:data:`TEMPLATE_SIDE` pixels across its diagonal, its
+in-plane angle undone, NaN outside its mask and its image), blurred by
+:data:`TEMPLATE_BLUR` template pixels. :mod:`posevote.inference.templates`
+compares the test image with it under each of the search's best probes.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from posevote.features.edges import box_mask
+from posevote.geometry import box_centre
+
+#: Template side, pixels: the view's box diagonal fits across it, so that any
+#: in-plane angle of the box stays inside.
+TEMPLATE_SIDE = 96
+#: Blur of the image before it is sampled, in template pixels (here and on the
+#: test image): tolerance to the search grid's steps and to viewpoints between
+#: training views.
+TEMPLATE_BLUR = 0.5
+
+
+def template_frame(centre: NDArray[np.float64], cell: float, angle: float) -> NDArray[np.float64]:
+    """The 2 x 3 affine map from template pixels to image pixels.
+
+    Template pixel ``q`` lands at ``centre + cell * R(angle) (q - (T - 1) / 2)``:
+    the template's centre on ``centre``, ``cell`` image pixels per template
+    pixel, turned by ``angle`` (image convention, as
+    :func:`posevote.geometry.rotate_points`).
+    """
+    c, s = np.cos(angle), np.sin(angle)
+    linear = cell * np.array([[c, -s], [s, c]])
+    half = (TEMPLATE_SIDE - 1) / 2.0
+    return np.hstack([linear, (np.asarray(centre, dtype=np.float64)
+                               - linear @ np.array([half, half]))[:, None]])
+
+
+def view_template(image: NDArray[np.floating], box: NDArray[np.float64],
+                  mask: NDArray[np.bool_] | None, inplane: float
+                  ) -> tuple[NDArray[np.float16], float]:
+    """A training view's template and its pixel size in the view's pixels.
+
+    Parameters
+    ----------
+    image : ndarray, shape (H, W)
+        The grey training image.
+    box : ndarray, shape (4,)
+        The object's box ``(x, y, w, h)``; its centre is the reference point.
+    mask : ndarray of bool, shape (H, W), or None
+        The object's pixels (None: the whole box).
+    inplane : float
+        The view's in-plane angle, radians (undone: the template is upright).
+
+    Returns
+    -------
+    template : ndarray of float16, shape (TEMPLATE_SIDE, TEMPLATE_SIDE)
+        Grey levels; NaN outside the mask, the box or the image.
+    cell : float
+        Image pixels per template pixel.
+    """
+    cell = float(np.hypot(box[2], box[3])) / TEMPLATE_SIDE
+    frame = template_frame(box_centre(box), cell, inplane)
+    size = (TEMPLATE_SIDE, TEMPLATE_SIDE)
+    flags = cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP
+    blurred = cv2.GaussianBlur(np.asarray(image, dtype=np.float32), (0, 0), TEMPLATE_BLUR * cell)
+    grey = cv2.warpAffine(blurred, frame, size, flags=flags, borderMode=cv2.BORDER_REPLICATE)
+    region = box_mask(image.shape, box, margin=0.0)
+    if mask is not None:
+        region &= mask
+    inside = cv2.warpAffine(region.astype(np.float32), frame, size, flags=flags,
+                            borderMode=cv2.BORDER_CONSTANT, borderValue=0.0) > 0.99
+    return np.where(inside, grey, np.nan).astype(np.float16), cell

@@ -1,0 +1,101 @@
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from posevote.inference.templates import (
+    TEMPLATE_CANDIDATES,
+    TILES,
+    _tiles,
+    rerank_by_template,
+    tile_correlation,
+)
+from posevote.model.templates import TEMPLATE_SIDE
+
+
+def _template(seed=0):
+    rng = np.random.default_rng(seed)
+    t = rng.random((TEMPLATE_SIDE, TEMPLATE_SIDE)).astype(np.float16)
+    t[:4] = np.nan                                  # outside the mask
+    return t
+
+
+def test_tile_correlation_is_one_for_the_template_and_minus_one_inverted():
+    t = _template()
+    pixels, tile = _tiles(t)
+    assert tile.max() == TILES * TILES - 1
+    same = np.nan_to_num(t.astype(np.float32))
+    assert tile_correlation(same, t, pixels, tile) == pytest.approx(1.0, abs=1e-3)
+    assert tile_correlation(1.0 - same, t, pixels, tile) == pytest.approx(-1.0, abs=1e-3)
+    other = np.nan_to_num(_template(1).astype(np.float32))
+    assert abs(tile_correlation(other, t, pixels, tile)) < 0.1
+
+
+def test_a_hidden_band_loses_only_its_own_tiles():
+    t = _template()
+    pixels, tile = _tiles(t)
+    patch = np.nan_to_num(t.astype(np.float32))
+    # A band over the left fifth of the template (under a quarter of the tiles) hidden by noise.
+    patch[:, :TEMPLATE_SIDE // 5] = np.random.default_rng(7).random((TEMPLATE_SIDE,
+                                                                      TEMPLATE_SIDE // 5))
+    assert tile_correlation(patch, t, pixels, tile) > 0.95
+
+
+def test_an_empty_template_correlates_zero():
+    t = np.full((TEMPLATE_SIDE, TEMPLATE_SIDE), np.nan, dtype=np.float16)
+    pixels, tile = _tiles(t)
+    assert tile_correlation(np.zeros(t.shape, np.float32), t, pixels, tile) == 0.0
+
+
+def _copies(draw, azimuth, *, true_at, negative_at):
+    """The object on grey where ``true_at`` says (0: left half, 1: right half, None: not
+    drawn) and its negative (every grey level mirrored about the background's: the same
+    edges, other grey levels) where ``negative_at`` says."""
+    obj = draw(azimuth)
+    drawn = np.where(obj > 0.02, obj, 0.5)
+    canvas = np.full((128, 256), 0.5)
+    for half, values in ((true_at, drawn), (negative_at, 1.0 - drawn)):
+        if half is not None:
+            canvas[:, 128 * half:128 * (half + 1)] = values
+    return canvas
+
+
+def _best_u(probes):
+    v, a, k = np.unravel_index(np.argmax(probes.score), probes.score.shape)
+    return probes.translation[v, a, k, 0]
+
+
+def test_template_reranking_tells_the_object_from_its_negative(fitted_estimator, draw):
+    from posevote import PoseEstimator
+
+    est = PoseEstimator(search=replace(fitted_estimator.search, rerank="template"))
+    est._set_trained(fitted_estimator._trained())
+    azimuth = np.radians(60)
+    # The edges alone score the object and its negative alike.
+    alone = fitted_estimator.probe(_copies(draw, azimuth, true_at=1, negative_at=None))[0]
+    negative = fitted_estimator.probe(_copies(draw, azimuth, true_at=None, negative_at=1))[0]
+    assert negative.score.max() == pytest.approx(alone.score.max(), rel=0.02)
+    # Re-ranked, the object wins on either side.
+    for true_at in (0, 1):
+        image = _copies(draw, azimuth, true_at=true_at, negative_at=1 - true_at)
+        ranked, _ = est.probe(image)
+        assert (_best_u(ranked) > 128) == bool(true_at)
+        assert (est.estimate(image).best.position[0] > 128) == bool(true_at)
+    # The best probes are scaled by their correlations, the rest by the lowest of them.
+    plain, _ = fitted_estimator.probe(image)
+    before, after = plain.score.ravel(), ranked.score.ravel()
+    order = np.argsort(-before, kind="stable")
+    top, rest = order[:TEMPLATE_CANDIDATES], order[TEMPLATE_CANDIDATES:]
+    top = top[before[top] > 0]
+    factor = after[top] / before[top]
+    assert np.all((factor > 0) & (factor <= 1.0 + 1e-9))
+    positive = rest[before[rest] > 0]
+    np.testing.assert_allclose(after[positive], before[positive] * factor.min())
+
+
+def test_a_model_without_templates_is_refused(fitted_estimator, draw):
+    model = replace(fitted_estimator.model_, view_template=None, view_template_cell=None)
+    probes, _ = fitted_estimator.probe(draw(0.0))
+    with pytest.raises(ValueError, match="rerank='template' needs a model with the views' "
+                                         "templates"):
+        rerank_by_template(probes, model, draw(0.0))
