@@ -48,7 +48,7 @@ def _tiles(template: NDArray[np.float16]) -> tuple[NDArray[np.intp], NDArray[np.
     return np.flatnonzero(valid), tile
 
 
-def tile_correlation(patch: NDArray[np.float32], template: NDArray[np.floating],
+def tile_correlation(patch: NDArray[np.floating], template: NDArray[np.floating],
                      pixels: NDArray[np.intp], tile: NDArray[np.intp]) -> float:
     """The mean of the best ``KEEP`` tiles' normalised cross-correlations.
 
@@ -69,14 +69,12 @@ def tile_correlation(patch: NDArray[np.float32], template: NDArray[np.floating],
     x = patch.ravel()[pixels].astype(np.float64)
     y = template.ravel()[pixels].astype(np.float64)
     n_tiles = TILES * TILES
-    n = np.bincount(tile, minlength=n_tiles).astype(np.float64)
-    sx, sy = np.bincount(tile, x, n_tiles), np.bincount(tile, y, n_tiles)
-    sxx, syy = np.bincount(tile, x * x, n_tiles), np.bincount(tile, y * y, n_tiles)
-    sxy = np.bincount(tile, x * y, n_tiles)
-    full = n >= MIN_TILE_PIXELS
+    sums = np.stack([np.bincount(tile, w, n_tiles).astype(np.float64)
+                     for w in (np.ones_like(x), x, y, x * x, y * y, x * y)])
+    full = sums[0] >= MIN_TILE_PIXELS
     if not full.any():
         return 0.0
-    n, sx, sy, sxx, syy, sxy = (a[full] for a in (n, sx, sy, sxx, syy, sxy))
+    n, sx, sy, sxx, syy, sxy = sums[:, full]
     cov = sxy - sx * sy / n
     var = np.maximum(sxx - sx * sx / n, 0.0) * np.maximum(syy - sy * sy / n, 0.0)
     # A flat tile (no texture on either side) says nothing: it correlates 0.
@@ -119,7 +117,7 @@ def rerank_by_template(probes: ProbeSet, model: PoseModel, image: NDArray[np.flo
     views = viewing_direction(model.view_azimuth, model.view_elevation)
     cell = float(np.median(model.view_template_cell))
     grey = np.asarray(image, dtype=np.float32)
-    blurred: dict[int, NDArray[np.float32]] = {}
+    blurred: dict[int, NDArray[np.floating]] = {}
     tiles: dict[int, tuple[NDArray[np.intp], NDArray[np.intp]]] = {}
     size = (TEMPLATE_SIDE, TEMPLATE_SIDE)
     found = np.empty(len(best))
@@ -129,13 +127,15 @@ def rerank_by_template(probes: ProbeSet, model: PoseModel, image: NDArray[np.flo
         s = float(probes.scale[k])
         if k not in blurred:
             # Blurred as the templates were, in template pixels at this scale.
-            blurred[k] = cv2.GaussianBlur(grey, (0, 0), TEMPLATE_BLUR * cell * s)
+            blurred[k] = np.asarray(cv2.GaussianBlur(grey, (0, 0), TEMPLATE_BLUR * cell * s),
+                                    dtype=np.float32)
         if view not in tiles:
             tiles[view] = _tiles(model.view_template[view])
-        frame = template_frame(probes.translation[v, a, k], s * float(model.view_template_cell[view]),
-                               float(probes.inplane[a]))
-        patch = cv2.warpAffine(blurred[k], frame, size, flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
-                               borderMode=cv2.BORDER_REFLECT)
+        frame = template_frame(probes.translation[v, a, k],
+                               s * float(model.view_template_cell[view]), float(probes.inplane[a]))
+        patch = np.asarray(cv2.warpAffine(blurred[k], frame, size,
+                                          flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                                          borderMode=cv2.BORDER_REFLECT), dtype=np.float32)
         found[n] = tile_correlation(patch, model.view_template[view], *tiles[view])
     found = np.maximum(found, _FLOOR)
     factor = np.full(score.size, float(found.min()))

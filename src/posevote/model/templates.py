@@ -66,7 +66,7 @@ def view_template(image: NDArray[np.floating], box: NDArray[np.float64],
         Image pixels per template pixel.
     """
     cell = float(np.hypot(box[2], box[3])) / TEMPLATE_SIDE
-    frame = template_frame(box_centre(box), cell, inplane)
+    frame = template_frame(np.asarray(box_centre(box), dtype=np.float64), cell, inplane)
     size = (TEMPLATE_SIDE, TEMPLATE_SIDE)
     flags = cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP
     blurred = cv2.GaussianBlur(np.asarray(image, dtype=np.float32), (0, 0), TEMPLATE_BLUR * cell)
