@@ -137,7 +137,7 @@ _EPFL_ROWS = (
         params={"appearance": None, "recognition": None, "search__rerank": "coverage"},
         note="edges alone, the paper's row of Fig. 7: the category preset's search without "
              "its appearance stages and without the instance model, its best probes "
-             "re-ranked by coverage (SearchOptions.coverage) instead of by the HOG "
+             "re-ranked by coverage (SearchOptions.rerank) instead of by the HOG "
              "verification"),
     Row(name="category preset: + HOG verification + box regression + nearest view", params={},
         note=f"beyond the paper: {_APPEARANCE}"),
