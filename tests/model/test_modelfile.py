@@ -55,6 +55,35 @@ def test_view_origins_round_trip_and_are_checked(tmp_path, toy_model):
             load_model(tmp_path / "bad.npz")
 
 
+def test_view_templates_round_trip_and_are_checked(tmp_path, toy_model):
+    from dataclasses import replace
+
+    model = toy_model()
+    template = np.random.default_rng(0).random((model.n_views, 8, 8)).astype(np.float16)
+    template[:, :2] = np.nan                       # outside the object
+    cell = np.full(model.n_views, 1.5)
+    save_model(tmp_path / "m.npz", _trained(replace(model, view_template=template,
+                                                    view_template_cell=cell)), {})
+    loaded = load_model(tmp_path / "m.npz")[0].model
+    np.testing.assert_array_equal(loaded.view_template, template)
+    np.testing.assert_array_equal(loaded.view_template_cell, cell)
+    assert loaded.view_template.dtype == np.float16
+    inf = template.copy()
+    inf[0, 4, 4] = np.inf
+    for bad in ({"view_template": template[:-1]}, {"view_template": template[:, :, :5]},
+                {"view_template": inf}, {"view_template_cell": -cell},
+                {"view_template_cell": cell[:-1]}):
+        _rewrite(tmp_path / "m.npz", tmp_path / "bad.npz", **bad)
+        with pytest.raises(ValueError, match="bad.npz: corrupt model file .*inconsistent"):
+            load_model(tmp_path / "bad.npz")
+    # One without the other.
+    with np.load(tmp_path / "m.npz") as data:
+        arrays = {k: data[k] for k in data.files if k != "view_template_cell"}
+    np.savez(tmp_path / "half.npz", **arrays)
+    with pytest.raises(ValueError, match="half.npz: corrupt model file .*inconsistent"):
+        load_model(tmp_path / "half.npz")
+
+
 def test_model_file_errors(tmp_path, toy_model):
     with pytest.raises(FileNotFoundError, match="model file not found"):
         load_model(tmp_path / "none.npz")
