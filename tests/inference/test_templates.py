@@ -6,11 +6,13 @@ import pytest
 from posevote.inference.templates import (
     TEMPLATE_CANDIDATES,
     TILES,
-    _tiles,
+    correlations,
     rerank_by_template,
+    sample_bilinear,
+    template_pixels,
     tile_correlation,
 )
-from posevote.model.templates import TEMPLATE_SIDE
+from posevote.model.templates import TEMPLATE_SIDE, template_frame
 
 
 def _template(seed=0):
@@ -22,29 +24,54 @@ def _template(seed=0):
 
 def test_tile_correlation_is_one_for_the_template_and_minus_one_inverted():
     t = _template()
-    pixels, tile = _tiles(t)
-    assert tile.max() == TILES * TILES - 1
-    same = np.nan_to_num(t.astype(np.float32))
-    assert tile_correlation(same, t, pixels, tile) == pytest.approx(1.0, abs=1e-3)
-    assert tile_correlation(1.0 - same, t, pixels, tile) == pytest.approx(-1.0, abs=1e-3)
-    other = np.nan_to_num(_template(1).astype(np.float32))
-    assert abs(tile_correlation(other, t, pixels, tile)) < 0.1
+    px = template_pixels(t)
+    assert px.tile.max() == TILES * TILES - 1 and len(px.tile) == np.isfinite(t).sum()
+    assert tile_correlation(px.value, px.value, px.tile) == pytest.approx(1.0)
+    assert tile_correlation(1.0 - px.value, px.value, px.tile) == pytest.approx(-1.0)
+    other = template_pixels(_template(1)).value
+    assert abs(tile_correlation(other, px.value, px.tile)) < 0.1
 
 
 def test_a_hidden_band_loses_only_its_own_tiles():
-    t = _template()
-    pixels, tile = _tiles(t)
-    patch = np.nan_to_num(t.astype(np.float32))
+    px = template_pixels(_template())
+    seen = px.value.copy()
     # A band over the left fifth of the template (under a quarter of the tiles) hidden by noise.
-    patch[:, :TEMPLATE_SIDE // 5] = np.random.default_rng(7).random((TEMPLATE_SIDE,
-                                                                      TEMPLATE_SIDE // 5))
-    assert tile_correlation(patch, t, pixels, tile) > 0.95
+    band = px.xy[:, 0] < TEMPLATE_SIDE // 5
+    seen[band] = np.random.default_rng(7).random(band.sum())
+    assert tile_correlation(seen, px.value, px.tile) > 0.95
 
 
 def test_an_empty_template_correlates_zero():
-    t = np.full((TEMPLATE_SIDE, TEMPLATE_SIDE), np.nan, dtype=np.float16)
-    pixels, tile = _tiles(t)
-    assert tile_correlation(np.zeros(t.shape, np.float32), t, pixels, tile) == 0.0
+    px = template_pixels(np.full((TEMPLATE_SIDE, TEMPLATE_SIDE), np.nan, dtype=np.float16))
+    assert len(px.tile) == 0
+    assert tile_correlation(px.value, px.value, px.tile) == 0.0
+    out = correlations(np.zeros((1, 8, 8), np.float32), np.zeros(1, np.int64),
+                       template_frame(np.array([[4.0, 4.0]]), np.array([0.1]), np.zeros(1)),
+                       np.zeros(1, np.int64), [px])
+    assert out.tolist() == [0.0]
+
+
+def test_bilinear_sampling_reads_pixels_and_extends_the_border():
+    image = np.arange(12.0).reshape(3, 4)
+    xy = np.array([[1.0, 2.0], [1.5, 0.5], [-3.0, 1.0], [9.0, 9.0]])
+    np.testing.assert_allclose(sample_bilinear(image, xy), [9.0, 3.5, 4.0, 11.0])
+
+
+def test_compiled_correlations_equal_the_numpy_reference():
+    rng = np.random.default_rng(5)
+    images = rng.random((2, 60, 80)).astype(np.float32)
+    pixels = [template_pixels(_template(0)), template_pixels(_template(3))]
+    n = 12
+    # Some frames run past the image's border.
+    frames = template_frame(rng.uniform(-10, 90, (n, 2)), rng.uniform(0.2, 1.2, n),
+                            rng.uniform(-np.pi, np.pi, n))
+    image_of, view_of = rng.integers(0, 2, n), rng.integers(0, 2, n)
+    got = correlations(images, image_of, frames, view_of, pixels)
+    for i in range(n):
+        px = pixels[view_of[i]]
+        xy = px.xy @ frames[i, :, :2].T + frames[i, :, 2]
+        want = tile_correlation(sample_bilinear(images[image_of[i]], xy), px.value, px.tile)
+        assert got[i] == pytest.approx(want, abs=1e-9)
 
 
 def _copies(draw, azimuth, *, true_at, negative_at):

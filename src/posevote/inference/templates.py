@@ -1,9 +1,9 @@
 """The search's best probes re-ranked by how well the image matches the object's grey levels.
 
 Beyond the paper (``SearchOptions.rerank = "template"``). Under each of the
-best :data:`TEMPLATE_CANDIDATES` probes, the test image is sampled in the
-frame of the nearest training view's template
-(:mod:`posevote.model.templates`) and compared with it by normalised
+best :data:`TEMPLATE_CANDIDATES` probes, the test image is sampled at the
+places of the nearest training view's template pixels
+(:mod:`posevote.model.templates`) and compared with them by normalised
 cross-correlation in :data:`TILES` x :data:`TILES` tiles of the template's
 mask; the mean of the best :data:`KEEP` of the tiles (a hidden part of the
 object loses only its own tiles) multiplies the probe's score. Every other
@@ -14,16 +14,17 @@ their order below them, as in the coverage re-ranking
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import cv2
+import numba
 import numpy as np
 from numpy.typing import NDArray
 
 from posevote.geometry import viewing_direction
 from posevote.inference.search import ProbeSet
 from posevote.model.density import PoseModel
-from posevote.model.templates import TEMPLATE_BLUR, TEMPLATE_SIDE, template_frame
+from posevote.model.templates import TEMPLATE_BLUR, template_frame
 
 #: Probes re-ranked (docs/DEFAULTS.md, "Template re-ranking").
 TEMPLATE_CANDIDATES = 300
@@ -36,38 +37,73 @@ MIN_TILE_PIXELS = 12
 _FLOOR = 0.01
 
 
-def _tiles(template: NDArray[np.float16]) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
-    """The template's valid pixels (flat indices) and the tile of each."""
-    valid = np.isfinite(template)
-    rows, cols = np.nonzero(valid)
+@dataclass(frozen=True, kw_only=True, eq=False)
+class TemplatePixels:
+    """The valid pixels of one template.
+
+    Attributes
+    ----------
+    xy : ndarray, shape (P, 2)
+        Their template coordinates ``(column, row)``.
+    tile : ndarray of int, shape (P,)
+        The tile of each, ``row_tile * TILES + column_tile`` over the pixels' box.
+    value : ndarray, shape (P,)
+        Their grey levels.
+    """
+
+    xy: NDArray[np.float64]
+    tile: NDArray[np.int64]
+    value: NDArray[np.float64]
+
+
+def template_pixels(template: NDArray[np.floating]) -> TemplatePixels:
+    """The template's finite pixels, their tiles and values."""
+    rows, cols = np.nonzero(np.isfinite(template))
     if rows.size == 0:
-        return np.zeros(0, dtype=np.intp), np.zeros(0, dtype=np.intp)
+        return TemplatePixels(xy=np.zeros((0, 2)), tile=np.zeros(0, dtype=np.int64),
+                              value=np.zeros(0))
     r0, r1 = rows.min(), rows.max() + 1
     c0, c1 = cols.min(), cols.max() + 1
     tile = ((rows - r0) * TILES // (r1 - r0)) * TILES + (cols - c0) * TILES // (c1 - c0)
-    return np.flatnonzero(valid), tile
+    return TemplatePixels(xy=np.column_stack([cols, rows]).astype(np.float64),
+                          tile=tile.astype(np.int64),
+                          value=template[rows, cols].astype(np.float64))
 
 
-def tile_correlation(patch: NDArray[np.floating], template: NDArray[np.floating],
-                     pixels: NDArray[np.intp], tile: NDArray[np.intp]) -> float:
-    """The mean of the best ``KEEP`` tiles' normalised cross-correlations.
+def sample_bilinear(image: NDArray[np.floating], xy: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``image`` at the points ``xy`` (``(u, v)`` pixels), bilinear, the border extended."""
+    h, w = image.shape
+    u = np.clip(xy[:, 0], 0.0, w - 1.0)
+    v = np.clip(xy[:, 1], 0.0, h - 1.0)
+    c0 = np.minimum(u.astype(np.int64), w - 2) if w > 1 else np.zeros(len(u), np.int64)
+    r0 = np.minimum(v.astype(np.int64), h - 2) if h > 1 else np.zeros(len(v), np.int64)
+    fu, fv = u - c0, v - r0
+    c1, r1 = np.minimum(c0 + 1, w - 1), np.minimum(r0 + 1, h - 1)
+    img = image.astype(np.float64)
+    return ((1 - fv) * ((1 - fu) * img[r0, c0] + fu * img[r0, c1])
+            + fv * ((1 - fu) * img[r1, c0] + fu * img[r1, c1]))
+
+
+def tile_correlation(x: NDArray[np.floating], y: NDArray[np.floating],
+                     tile: NDArray[np.int64]) -> float:
+    """The mean of the best ``KEEP`` tiles' normalised cross-correlations (numpy).
 
     Parameters
     ----------
-    patch : ndarray, shape (T, T)
-        The test image sampled in the template's frame.
-    template : ndarray, shape (T, T)
-        The view's template.
-    pixels, tile : ndarray of int
-        The template's valid pixels (flat) and their tiles (:func:`_tiles`).
+    x : ndarray, shape (P,)
+        The test image at the template's pixels.
+    y : ndarray, shape (P,)
+        The template's grey levels there.
+    tile : ndarray of int, shape (P,)
+        The tile of each pixel (:func:`template_pixels`).
 
     Returns
     -------
     float
-        In [-1, 1]; 0 when no tile has :data:`MIN_TILE_PIXELS` pixels.
+        In [-1, 1]; 0 when no tile has :data:`MIN_TILE_PIXELS` pixels. A flat
+        tile (no texture on either side) correlates 0.
     """
-    x = patch.ravel()[pixels].astype(np.float64)
-    y = template.ravel()[pixels].astype(np.float64)
+    x, y = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
     n_tiles = TILES * TILES
     sums = np.stack([np.bincount(tile, w, n_tiles).astype(np.float64)
                      for w in (np.ones_like(x), x, y, x * x, y * y, x * y)])
@@ -77,10 +113,94 @@ def tile_correlation(patch: NDArray[np.floating], template: NDArray[np.floating]
     n, sx, sy, sxx, syy, sxy = sums[:, full]
     cov = sxy - sx * sy / n
     var = np.maximum(sxx - sx * sx / n, 0.0) * np.maximum(syy - sy * sy / n, 0.0)
-    # A flat tile (no texture on either side) says nothing: it correlates 0.
     ncc = np.where(var > 1e-12, cov / np.sqrt(np.maximum(var, 1e-24)), 0.0)
     best = np.sort(ncc)[::-1]
     return float(best[:max(1, int(round(len(best) * KEEP)))].mean())
+
+
+# One pass over each candidate's template pixels where numpy sampled, then
+# binned six sums; tile_correlation and sample_bilinear are its reference.
+@numba.njit(cache=True, nogil=True)
+def _correlations(images, image_of, frames, view_of, start, xy, tile, value, n_tiles, keep,
+                  min_pixels, out):  # pragma: no cover - compiled
+    """For each candidate ``n``: ``images[image_of[n]]`` sampled at the pixels of view
+    ``view_of[n]`` (``start[v]:start[v + 1]`` of ``xy``, ``tile``, ``value``) mapped by
+    ``frames[n]``, correlated tile by tile, the best ``keep`` share averaged."""
+    _, h, w = images.shape
+    sums = np.zeros((n_tiles, 6))
+    ncc = np.zeros(n_tiles)
+    for n in range(frames.shape[0]):
+        img = images[image_of[n]]
+        f = frames[n]
+        sums[:, :] = 0.0
+        for p in range(start[view_of[n]], start[view_of[n] + 1]):
+            u = f[0, 0] * xy[p, 0] + f[0, 1] * xy[p, 1] + f[0, 2]
+            v = f[1, 0] * xy[p, 0] + f[1, 1] * xy[p, 1] + f[1, 2]
+            u = min(max(u, 0.0), w - 1.0)
+            v = min(max(v, 0.0), h - 1.0)
+            c0 = min(int(u), w - 2) if w > 1 else 0
+            r0 = min(int(v), h - 2) if h > 1 else 0
+            c1, r1 = min(c0 + 1, w - 1), min(r0 + 1, h - 1)
+            fu, fv = u - c0, v - r0
+            s = ((1 - fv) * ((1 - fu) * img[r0, c0] + fu * img[r0, c1])
+                 + fv * ((1 - fu) * img[r1, c0] + fu * img[r1, c1]))
+            t, y = tile[p], value[p]
+            sums[t, 0] += 1.0
+            sums[t, 1] += s
+            sums[t, 2] += y
+            sums[t, 3] += s * s
+            sums[t, 4] += y * y
+            sums[t, 5] += s * y
+        m = 0
+        for t in range(n_tiles):
+            k = sums[t, 0]
+            if k < min_pixels:
+                continue
+            cov = sums[t, 5] - sums[t, 1] * sums[t, 2] / k
+            var = (max(sums[t, 3] - sums[t, 1] * sums[t, 1] / k, 0.0)
+                   * max(sums[t, 4] - sums[t, 2] * sums[t, 2] / k, 0.0))
+            ncc[m] = cov / np.sqrt(var) if var > 1e-12 else 0.0
+            m += 1
+        if m == 0:
+            out[n] = 0.0
+            continue
+        best = -np.sort(-ncc[:m])
+        kept = max(1, int(np.round(m * keep)))
+        out[n] = best[:kept].mean()
+
+
+def correlations(images: NDArray[np.float32], image_of: NDArray[np.int64],
+                 frames: NDArray[np.float64], view_of: NDArray[np.int64],
+                 pixels: list[TemplatePixels]) -> NDArray[np.float64]:
+    """Each candidate's tiled correlation (:func:`tile_correlation`), compiled.
+
+    Parameters
+    ----------
+    images : ndarray of float32, shape (B, H, W)
+        The test image blurred for each scale.
+    image_of : ndarray of int, shape (N,)
+        The blurred image each candidate reads.
+    frames : ndarray, shape (N, 2, 3)
+        Each candidate's map from template pixels to image pixels
+        (:func:`posevote.model.templates.template_frame`).
+    view_of : ndarray of int, shape (N,)
+        The index into ``pixels`` of each candidate's template.
+    pixels : list of TemplatePixels
+
+    Returns
+    -------
+    ndarray, shape (N,)
+    """
+    start = np.concatenate([[0], np.cumsum([len(p.tile) for p in pixels])]).astype(np.int64)
+    out = np.empty(len(frames))
+    _correlations(np.ascontiguousarray(images, dtype=np.float32),
+                  np.asarray(image_of, dtype=np.int64), np.asarray(frames, dtype=np.float64),
+                  np.asarray(view_of, dtype=np.int64), start,
+                  np.vstack([p.xy for p in pixels] + [np.zeros((0, 2))]),
+                  np.concatenate([p.tile for p in pixels] + [np.zeros(0, np.int64)]),
+                  np.concatenate([p.value for p in pixels] + [np.zeros(0)]),
+                  TILES * TILES, KEEP, float(MIN_TILE_PIXELS), out)
+    return out
 
 
 def rerank_by_template(probes: ProbeSet, model: PoseModel, image: NDArray[np.floating]
@@ -114,29 +234,23 @@ def rerank_by_template(probes: ProbeSet, model: PoseModel, image: NDArray[np.flo
     best = best[score.ravel()[best] > 0]
     if len(best) == 0:
         return probes
-    views = viewing_direction(model.view_azimuth, model.view_elevation)
+    v, a, k = np.unravel_index(best, score.shape)
+    # Each probed viewpoint's nearest training view.
+    nearest = np.argmax(probes.directions @ viewing_direction(
+        model.view_azimuth, model.view_elevation).T, axis=1)
+    views, view_of = np.unique(nearest[v], return_inverse=True)
+    scales, image_of = np.unique(k, return_inverse=True)
     cell = float(np.median(model.view_template_cell))
     grey = np.asarray(image, dtype=np.float32)
-    blurred: dict[int, NDArray[np.floating]] = {}
-    tiles: dict[int, tuple[NDArray[np.intp], NDArray[np.intp]]] = {}
-    size = (TEMPLATE_SIDE, TEMPLATE_SIDE)
-    found = np.empty(len(best))
-    for n, flat in enumerate(best):
-        v, a, k = (int(i) for i in np.unravel_index(flat, score.shape))
-        view = int(np.argmax(views @ probes.directions[v]))
-        s = float(probes.scale[k])
-        if k not in blurred:
-            # Blurred as the templates were, in template pixels at this scale.
-            blurred[k] = np.asarray(cv2.GaussianBlur(grey, (0, 0), TEMPLATE_BLUR * cell * s),
-                                    dtype=np.float32)
-        if view not in tiles:
-            tiles[view] = _tiles(model.view_template[view])
-        frame = template_frame(probes.translation[v, a, k],
-                               s * float(model.view_template_cell[view]), float(probes.inplane[a]))
-        patch = np.asarray(cv2.warpAffine(blurred[k], frame, size,
-                                          flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
-                                          borderMode=cv2.BORDER_REFLECT), dtype=np.float32)
-        found[n] = tile_correlation(patch, model.view_template[view], *tiles[view])
+    # Blurred as the templates were, in template pixels at each scale.
+    images = np.stack([np.asarray(cv2.GaussianBlur(grey, (0, 0), TEMPLATE_BLUR * cell
+                                                   * float(probes.scale[s])), dtype=np.float32)
+                       for s in scales])
+    frames = template_frame(probes.translation[v, a, k],
+                            probes.scale[k] * model.view_template_cell[nearest[v]],
+                            probes.inplane[a])
+    found = correlations(images, image_of.ravel(), frames, view_of.ravel(),
+                         [template_pixels(model.view_template[view]) for view in views])
     found = np.maximum(found, _FLOOR)
     factor = np.full(score.size, float(found.min()))
     factor[best] = found

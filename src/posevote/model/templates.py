@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from posevote.features.edges import box_mask
 from posevote.geometry import box_centre
@@ -27,19 +27,23 @@ TEMPLATE_SIDE = 96
 TEMPLATE_BLUR = 0.5
 
 
-def template_frame(centre: NDArray[np.float64], cell: float, angle: float) -> NDArray[np.float64]:
-    """The 2 x 3 affine map from template pixels to image pixels.
+def template_frame(centre: ArrayLike, cell: ArrayLike, angle: ArrayLike) -> NDArray[np.float64]:
+    """The 2 x 3 affine maps from template pixels to image pixels.
 
     Template pixel ``q`` lands at ``centre + cell * R(angle) (q - (T - 1) / 2)``:
     the template's centre on ``centre``, ``cell`` image pixels per template
     pixel, turned by ``angle`` (image convention, as
-    :func:`posevote.geometry.rotate_points`).
+    :func:`posevote.geometry.rotate_points`). ``centre`` of shape (..., 2) and
+    ``cell`` and ``angle`` broadcast with its leading shape give maps of
+    shape (..., 2, 3).
     """
+    centre = np.asarray(centre, dtype=np.float64)
+    scaled = np.asarray(cell, dtype=np.float64)[..., None, None]
     c, s = np.cos(angle), np.sin(angle)
-    linear = cell * np.array([[c, -s], [s, c]])
+    linear = scaled * np.stack([np.stack([c, -s], axis=-1), np.stack([s, c], axis=-1)], axis=-2)
     half = (TEMPLATE_SIDE - 1) / 2.0
-    return np.hstack([linear, (np.asarray(centre, dtype=np.float64)
-                               - linear @ np.array([half, half]))[:, None]])
+    shift = centre - half * linear.sum(axis=-1)
+    return np.concatenate([linear, shift[..., None]], axis=-1)
 
 
 def view_template(image: NDArray[np.floating], box: NDArray[np.float64],
@@ -66,7 +70,7 @@ def view_template(image: NDArray[np.floating], box: NDArray[np.float64],
         Image pixels per template pixel.
     """
     cell = float(np.hypot(box[2], box[3])) / TEMPLATE_SIDE
-    frame = template_frame(np.asarray(box_centre(box), dtype=np.float64), cell, inplane)
+    frame = template_frame(box_centre(box), cell, inplane)
     size = (TEMPLATE_SIDE, TEMPLATE_SIDE)
     flags = cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP
     blurred = cv2.GaussianBlur(np.asarray(image, dtype=np.float32), (0, 0), TEMPLATE_BLUR * cell)
