@@ -34,7 +34,7 @@ from posevote.inference.search import (
     probe,
     search_maps,
 )
-from posevote.inference.templates import rerank_by_template
+from posevote.inference.templates import pose_correlations, rerank_by_template
 from posevote.inference.verification import verify
 from posevote.model.appearance import AppearanceModel, AppearanceOptions
 from posevote.model.density import PoseModel, origin_offset
@@ -373,7 +373,8 @@ class PoseEstimator(GroupedParams):
             # only those near its box).
             hyps[0] = local_refine(probes, modes[0], hyps[0], model, setup, fitting=self.fitting,
                                    features=feats, shape=shape, maps=fine,
-                                   object_units=self.search.object_kernel)
+                                   object_units=self.search.object_kernel,
+                                   correlate=self._correlate(img))
         instance, margin = "", float("nan")
         if recognizing and hyps and fine is not None and self.recognition is not None:
             hyps, instance, margin = recognize(hyps, feats, self.full_model_, maps, fine, setup,
@@ -402,6 +403,20 @@ class PoseEstimator(GroupedParams):
         if self.search.rerank == "template":
             return rerank_by_template(probes, model, image)
         return probes
+
+    def _correlate(self, image: NDArray[np.float64]
+                   ) -> Callable[[list[Hypothesis]], NDArray[np.float64]] | None:
+        """What weighs poses by the object's grey levels, with the template re-ranking."""
+        if self.search.rerank != "template":
+            return None
+        model = self._check_fitted()
+
+        def correlate(hyps: list[Hypothesis]) -> NDArray[np.float64]:
+            return pose_correlations(model, image, *(np.array([getattr(h, name) for h in hyps])
+                                                     for name in ("azimuth", "elevation",
+                                                                  "inplane", "scale",
+                                                                  "position")))
+        return correlate
 
     def _origin(self, hypothesis: Hypothesis) -> tuple[float, float, float] | None:
         """The image of the object's origin under a hypothesis and its depth factor (None:

@@ -223,3 +223,28 @@ def test_compass_search_kernel_agrees_with_reference():
     assert z[0] == 0.0 and z_ref[0] == 0.0
     np.testing.assert_allclose(z, z_ref, atol=1e-9)
     assert best == pytest.approx(best_ref, rel=1e-9) and best > initial
+
+
+def test_rescale_anchor_weighs_each_scale_by_its_correlation(synthetic_training, draw):
+    from posevote import PoseEstimator
+    from posevote.refinement.local import rescale_anchor
+
+    images, az, boxes = synthetic_training
+    est = PoseEstimator(search=SearchOptions(scale_range=(0.7, 1.3), scale_steps=5,
+                                             object_kernel=True, chance_correction=True)
+                        ).fit(images, az, boxes=boxes)
+    img = draw(np.radians(40.0), scale=1.15, centre=(64.0, 64.0), size=160)
+    probes, feats = est.probe(img)
+    mode = find_modes(probes)[0]
+    args = (probes, mode, est.model_, feats, img.shape[:2], est.setup())
+    plain, s = rescale_anchor(*args)
+    seen = []
+
+    def correlate(hyps):
+        seen.append(len(hyps))
+        # The edges' choice does not look like the object; the others do.
+        return np.array([0.0 if abs(h.scale - plain.scale) < 1e-9 else 1.0 for h in hyps])
+
+    weighed, s2 = rescale_anchor(*args, correlate=correlate)
+    assert seen == [len(probes.scale)] and s2 != s
+    assert rescale_anchor(*args, correlate=lambda hyps: np.ones(len(hyps)))[1] == s

@@ -33,8 +33,8 @@ TEMPLATE_CANDIDATES = 300
 TILES = 4
 KEEP = 0.5
 MIN_TILE_PIXELS = 12
-#: The factor of a probe whose image does not correlate with the template.
-_FLOOR = 0.01
+#: The factor of a pose whose image does not correlate with the template.
+CORRELATION_FLOOR = 0.01
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -203,6 +203,29 @@ def correlations(images: NDArray[np.float32], image_of: NDArray[np.int64],
     return out
 
 
+def pose_correlations(model: PoseModel, image: NDArray[np.floating],
+                      azimuth: NDArray[np.float64], elevation: NDArray[np.float64],
+                      inplane: NDArray[np.float64], scale: NDArray[np.float64],
+                      position: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The tiled correlation of the image with the nearest training view's template under
+    each pose (arrays of N; ``position`` (N, 2), the reference point in pixels)."""
+    if model.view_template is None or model.view_template_cell is None:
+        raise ValueError("SearchOptions.rerank='template' needs a model with the views' "
+                         "templates; fit it again")
+    nearest = np.argmax(viewing_direction(azimuth, elevation) @ viewing_direction(
+        model.view_azimuth, model.view_elevation).T, axis=1)
+    views, view_of = np.unique(nearest, return_inverse=True)
+    scales, image_of = np.unique(scale, return_inverse=True)
+    cell = float(np.median(model.view_template_cell))
+    grey = np.asarray(image, dtype=np.float32)
+    # Blurred as the templates were, in template pixels at each scale.
+    images = np.stack([np.asarray(cv2.GaussianBlur(grey, (0, 0), TEMPLATE_BLUR * cell * float(f)),
+                                  dtype=np.float32) for f in scales])
+    frames = template_frame(position, scale * model.view_template_cell[nearest], inplane)
+    return correlations(images, image_of.ravel(), frames, view_of.ravel(),
+                        [template_pixels(model.view_template[view]) for view in views])
+
+
 def rerank_by_template(probes: ProbeSet, model: PoseModel, image: NDArray[np.floating]
                        ) -> ProbeSet:
     """Multiply the best probes' scores by their template correlation.
@@ -235,23 +258,9 @@ def rerank_by_template(probes: ProbeSet, model: PoseModel, image: NDArray[np.flo
     if len(best) == 0:
         return probes
     v, a, k = np.unravel_index(best, score.shape)
-    # Each probed viewpoint's nearest training view.
-    nearest = np.argmax(probes.directions @ viewing_direction(
-        model.view_azimuth, model.view_elevation).T, axis=1)
-    views, view_of = np.unique(nearest[v], return_inverse=True)
-    scales, image_of = np.unique(k, return_inverse=True)
-    cell = float(np.median(model.view_template_cell))
-    grey = np.asarray(image, dtype=np.float32)
-    # Blurred as the templates were, in template pixels at each scale.
-    images = np.stack([np.asarray(cv2.GaussianBlur(grey, (0, 0), TEMPLATE_BLUR * cell
-                                                   * float(probes.scale[s])), dtype=np.float32)
-                       for s in scales])
-    frames = template_frame(probes.translation[v, a, k],
-                            probes.scale[k] * model.view_template_cell[nearest[v]],
-                            probes.inplane[a])
-    found = correlations(images, image_of.ravel(), frames, view_of.ravel(),
-                         [template_pixels(model.view_template[view]) for view in views])
-    found = np.maximum(found, _FLOOR)
+    found = pose_correlations(model, image, probes.azimuth[v], probes.elevation[v],
+                              probes.inplane[a], probes.scale[k], probes.translation[v, a, k])
+    found = np.maximum(found, CORRELATION_FLOOR)
     factor = np.full(score.size, float(found.min()))
     factor[best] = found
     return replace(probes, score=np.where(score > 0, score * factor.reshape(score.shape), score))

@@ -10,6 +10,7 @@ features, which is what puts the object's position within a pixel or two.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import replace
 from typing import Any
 
@@ -26,6 +27,7 @@ from posevote.inference.search import (
     image_maps,
     viewpoint_features,
 )
+from posevote.inference.templates import CORRELATION_FLOOR
 from posevote.inference.voting import (
     gather_score,
     gather_score_reference,
@@ -269,7 +271,8 @@ def in_frame(pose: Hypothesis, factor: float) -> Hypothesis:
 
 
 def rescale_anchor(probes: ProbeSet, viewpoint: int, model: PoseModel,
-                   features: EdgeFeatures, shape: tuple[int, int], setup: SearchSetup
+                   features: EdgeFeatures, shape: tuple[int, int], setup: SearchSetup, *,
+                   correlate: Callable[[list[Hypothesis]], NDArray[np.float64]] | None = None
                    ) -> tuple[Hypothesis, int] | None:
     """Choose a mode's scale again with the narrow kernel in object units (beyond the paper).
 
@@ -298,6 +301,12 @@ def rescale_anchor(probes: ProbeSet, viewpoint: int, model: PoseModel,
         The image's shape.
     setup : SearchSetup
         The search's setup (narrow kernel, pose kernel, weights).
+    correlate : callable, optional
+        Each polished pose's correlation with the object's grey levels
+        (:func:`posevote.inference.templates.pose_correlations`); with it a
+        scale's chance-corrected score is multiplied by it (floored), as the
+        search's were, so that another scale's best probe on the clutter
+        does not win on edges alone.
 
     Returns
     -------
@@ -313,7 +322,7 @@ def rescale_anchor(probes: ProbeSet, viewpoint: int, model: PoseModel,
     # reach at the largest scale it may take, and the bilinear read's pixel.
     reach = POLISH_SHIFT + float(np.exp(half)) * float(
         np.sqrt(np.max(np.sum(feats.xy**2, axis=1), initial=0.0))) + 2.0
-    best: tuple[float, Hypothesis, int] | None = None
+    found: list[tuple[float, Hypothesis, int]] = []
     for s, factor in enumerate(probes.scale.tolist()):
         a = int(np.argmax(probes.score[viewpoint, :, s]))
         if probes.score[viewpoint, a, s] <= 0:
@@ -329,10 +338,16 @@ def rescale_anchor(probes: ProbeSet, viewpoint: int, model: PoseModel,
         polished = polish_pose(start, model, maps, **kw,
                                scale_bounds=(float(np.exp(-half)), float(np.exp(half))))
         chance = min(maps.chance, 0.99)
-        value = (polished.score - chance) / (1.0 - chance)
-        if best is None or value > best[0]:
-            best = (value, replace(in_frame(polished, 1.0 / factor), score=probe.score), s)
-    return None if best is None else (best[1], best[2])
+        found.append(((polished.score - chance) / (1.0 - chance),
+                      replace(in_frame(polished, 1.0 / factor), score=probe.score), s))
+    if not found:
+        return None
+    value = np.array([f[0] for f in found])
+    if correlate is not None:
+        factor = np.maximum(correlate([f[1] for f in found]), CORRELATION_FLOOR)
+        value = np.where(value > 0, value * factor, value)
+    best = found[int(np.argmax(value))]
+    return best[1], best[2]
 
 
 def _score_options(setup: SearchSetup) -> dict[str, Any]:
@@ -461,7 +476,9 @@ REFINE_SCALE_STEPS = 1.0
 def local_refine(probes: ProbeSet, viewpoint: int, hypothesis: Hypothesis, model: PoseModel,
                  setup: SearchSetup, *, fitting: bool, features: EdgeFeatures | None = None,
                  shape: tuple[int, int] | None = None, maps: TestMaps | None = None,
-                 object_units: bool = False) -> Hypothesis:
+                 object_units: bool = False,
+                 correlate: Callable[[list[Hypothesis]], NDArray[np.float64]] | None = None
+                 ) -> Hypothesis:
     """The local refinement of one mode (beyond the paper).
 
     With ``fitting``, the profile likelihood around the mode's best
@@ -496,6 +513,8 @@ def local_refine(probes: ProbeSet, viewpoint: int, hypothesis: Hypothesis, model
         (else made from ``features`` when needed).
     object_units : bool, optional
         With ``fitting``, choose the scale again in object units.
+    correlate : callable, optional
+        Weighs that choice by the grey levels (:func:`rescale_anchor`).
 
     Returns
     -------
@@ -521,7 +540,8 @@ def local_refine(probes: ProbeSet, viewpoint: int, hypothesis: Hypothesis, model
     if object_units:
         if features is None or shape is None:
             raise ValueError("local_refine in object units needs the features and shape")
-        if chosen := rescale_anchor(probes, viewpoint, model, features, shape, setup):
+        if chosen := rescale_anchor(probes, viewpoint, model, features, shape, setup,
+                                    correlate=correlate):
             anchor, s = chosen
             factor = float(probes.scale[s])
             scaled = image_maps(*scaled_features(features, shape, factor), setup, scale=factor)
