@@ -146,10 +146,10 @@ def test_in_frame_round_trip():
     assert back.scale == pytest.approx(h.scale)
 
 
-def test_rescale_anchor_finds_the_scale_in_object_units(synthetic_training, draw):
+def _rescale_case(synthetic_training, draw):
+    """An estimator searching 5 scales in object units, an image at scale 1.15, its probes,
+    features and best mode."""
     from posevote import PoseEstimator
-    from posevote.data import object_box
-    from posevote.refinement.local import rescale_anchor
 
     images, az, boxes = synthetic_training
     est = PoseEstimator(search=SearchOptions(scale_range=(0.7, 1.3), scale_steps=5,
@@ -157,8 +157,15 @@ def test_rescale_anchor_finds_the_scale_in_object_units(synthetic_training, draw
                         ).fit(images, az, boxes=boxes)
     img = draw(np.radians(40.0), scale=1.15, centre=(64.0, 64.0), size=160)
     probes, feats = est.probe(img)
+    return est, img, probes, feats, find_modes(probes)[0]
+
+
+def test_rescale_anchor_finds_the_scale_in_object_units(synthetic_training, draw):
+    from posevote.data import object_box
+    from posevote.refinement.local import rescale_anchor
+
+    est, img, probes, feats, mode = _rescale_case(synthetic_training, draw)
     shape = img.shape[:2]
-    mode = find_modes(probes)[0]
     anchor, s = rescale_anchor(probes, mode, est.model_, feats, shape, est.setup())
     assert anchor.scale == pytest.approx(1.15, rel=0.06)
     assert abs(np.log(probes.scale[s] / 1.15)) <= 0.5 * np.log(1.3 / 0.7) / 4 + 1e-9
@@ -226,16 +233,9 @@ def test_compass_search_kernel_agrees_with_reference():
 
 
 def test_rescale_anchor_weighs_each_scale_by_its_correlation(synthetic_training, draw):
-    from posevote import PoseEstimator
     from posevote.refinement.local import rescale_anchor
 
-    images, az, boxes = synthetic_training
-    est = PoseEstimator(search=SearchOptions(scale_range=(0.7, 1.3), scale_steps=5,
-                                             object_kernel=True, chance_correction=True)
-                        ).fit(images, az, boxes=boxes)
-    img = draw(np.radians(40.0), scale=1.15, centre=(64.0, 64.0), size=160)
-    probes, feats = est.probe(img)
-    mode = find_modes(probes)[0]
+    est, img, probes, feats, mode = _rescale_case(synthetic_training, draw)
     args = (probes, mode, est.model_, feats, img.shape[:2], est.setup())
     plain, s = rescale_anchor(*args)
     seen = []
