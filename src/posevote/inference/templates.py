@@ -215,15 +215,21 @@ def pose_correlations(model: PoseModel, image: NDArray[np.floating],
     nearest = np.argmax(viewing_direction(azimuth, elevation) @ viewing_direction(
         model.view_azimuth, model.view_elevation).T, axis=1)
     views, view_of = np.unique(nearest, return_inverse=True)
-    scales, image_of = np.unique(scale, return_inverse=True)
+    view_of = view_of.ravel()
+    pixels = [template_pixels(model.view_template[view]) for view in views]
     cell = float(np.median(model.view_template_cell))
     grey = np.asarray(image, dtype=np.float32)
-    # Blurred as the templates were, in template pixels at each scale.
-    images = np.stack([np.asarray(cv2.GaussianBlur(grey, (0, 0), TEMPLATE_BLUR * cell * float(f)),
-                                  dtype=np.float32) for f in scales])
     frames = template_frame(position, scale * model.view_template_cell[nearest], inplane)
-    return correlations(images, image_of.ravel(), frames, view_of.ravel(),
-                        [template_pixels(model.view_template[view]) for view in views])
+    out = np.empty(len(frames))
+    # One scale at a time: one blurred copy of the image in memory.
+    for f in np.unique(scale):
+        at = np.flatnonzero(scale == f)
+        # Blurred as the templates were, in template pixels at this scale.
+        blurred = np.asarray(cv2.GaussianBlur(grey, (0, 0), TEMPLATE_BLUR * cell * float(f)),
+                             dtype=np.float32)
+        out[at] = correlations(blurred[None], np.zeros(len(at), dtype=np.int64), frames[at],
+                               view_of[at], pixels)
+    return out
 
 
 def rerank_by_template(probes: ProbeSet, model: PoseModel, image: NDArray[np.floating]

@@ -1,8 +1,9 @@
 """Training (Sec. II-A, II-C, III-A): pose-annotated images to a weighted, optionally pruned model.
 
 :func:`train_model` reads each training image once: its edges inside the
-object's box (and mask), its appearance descriptors when the appearance
-stages are wanted, and its crop for the morphing between turntable views;
+object's box (and mask), its grey template (:mod:`posevote.model.templates`),
+its appearance descriptors when the appearance stages are wanted, and its
+crop for the morphing between turntable views;
 then it builds psi (:func:`posevote.model.density.build_model`), weighs the
 features (Eq. 4) and prunes the pooled model (Sec. III-A).
 """
