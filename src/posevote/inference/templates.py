@@ -208,7 +208,13 @@ def pose_correlations(model: PoseModel, image: NDArray[np.floating],
                       inplane: NDArray[np.float64], scale: NDArray[np.float64],
                       position: NDArray[np.float64]) -> NDArray[np.float64]:
     """The tiled correlation of the image with the nearest training view's template under
-    each pose (arrays of N; ``position`` (N, 2), the reference point in pixels)."""
+    each pose (arrays of N; ``position`` (N, 2), the reference point in pixels).
+
+    Raises
+    ------
+    ValueError
+        If the model has no templates (trained by a posevote without them).
+    """
     if model.view_template is None or model.view_template_cell is None:
         raise ValueError("SearchOptions.rerank='template' needs a model with the views' "
                          "templates; fit it again")
@@ -253,11 +259,8 @@ def rerank_by_template(probes: ProbeSet, model: PoseModel, image: NDArray[np.flo
     Raises
     ------
     ValueError
-        If the model has no templates (trained by a posevote without them).
+        If the model has no templates (:func:`pose_correlations`) and a probe scores.
     """
-    if model.view_template is None or model.view_template_cell is None:
-        raise ValueError("SearchOptions.rerank='template' needs a model with the views' "
-                         "templates; fit it again")
     score = probes.score
     best = np.argsort(-score.ravel(), kind="stable")[:TEMPLATE_CANDIDATES]
     best = best[score.ravel()[best] > 0]
