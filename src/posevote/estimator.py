@@ -205,7 +205,8 @@ class PoseEstimator(GroupedParams):
         trained = train_model(images, poses, boxes=boxes, masks=masks, instances=instances,
                               category=category, edges=self.edges, kernel=self.kernel,
                               morph=self.morph_views, prune=resolve_preset(self.prune),
-                              appearance=self.appearance is not None, progress=progress,
+                              appearance=self.appearance is not None,
+                              templates=self.search.rerank == "template", progress=progress,
                               channels=channels, object_height_m=object_height_m,
                               origins=origins, n_threads=self.n_jobs)
         self._set_trained(trained)

@@ -1,3 +1,4 @@
+import copy
 from dataclasses import replace
 
 import numpy as np
@@ -92,11 +93,12 @@ def _best_u(probes):
     return probes.translation[v, a, k, 0]
 
 
-def test_template_reranking_tells_the_object_from_its_negative(fitted_estimator, draw):
+def test_template_reranking_tells_the_object_from_its_negative(fitted_estimator,
+                                                               synthetic_training, draw):
     from posevote import PoseEstimator
 
-    est = PoseEstimator(search=replace(fitted_estimator.search, rerank="template"))
-    est._set_trained(fitted_estimator._trained())
+    est = PoseEstimator(search=replace(fitted_estimator.search, rerank="template")).fit(
+        *synthetic_training[:2], boxes=synthetic_training[2])
     azimuth = np.radians(60)
     # The edges alone score the object and its negative alike.
     alone = fitted_estimator.probe(_copies(draw, azimuth, true_at=1, negative_at=None))[0]
@@ -120,9 +122,12 @@ def test_template_reranking_tells_the_object_from_its_negative(fitted_estimator,
     np.testing.assert_allclose(after[positive], before[positive] * factor.min())
 
 
-def test_a_model_without_templates_is_refused(fitted_estimator, draw):
-    model = replace(fitted_estimator.model_, view_template=None, view_template_cell=None)
+def test_a_model_not_fitted_for_templates_is_refused(fitted_estimator, draw):
+    assert fitted_estimator.model_.view_template is None     # fitted without the re-ranking
     probes, _ = fitted_estimator.probe(draw(0.0))
-    with pytest.raises(ValueError, match="rerank='template' needs a model with the views' "
-                                         "templates"):
-        rerank_by_template(probes, model, draw(0.0))
+    with pytest.raises(ValueError, match="rerank='template' needs the views' templates, "
+                                         "learnt when the model is fitted with it"):
+        rerank_by_template(probes, fitted_estimator.model_, draw(0.0))
+    with pytest.raises(ValueError, match="fit \\(or retrain\\) with search.rerank='template'"):
+        copy.deepcopy(fitted_estimator).set_params(search__rerank="template").estimate(
+            draw(0.0))

@@ -58,8 +58,13 @@ def test_template_undoes_the_views_inplane_angle():
     assert np.corrcoef(a, b)[0, 1] > 0.98
 
 
-def test_training_keeps_each_views_template(fitted_estimator):
-    model = fitted_estimator.model_
+def test_training_keeps_each_views_template(synthetic_training):
+    from posevote import PoseEstimator
+    from posevote.inference.search import SearchOptions
+
+    images, az, boxes = synthetic_training
+    model = PoseEstimator(search=SearchOptions(rerank="template")).fit(images, az,
+                                                                      boxes=boxes).model_
     assert model.view_template.shape == (model.n_views, TEMPLATE_SIDE, TEMPLATE_SIDE)
     assert np.all(model.view_template_cell > 0)
     # The synthetic views all have the reference size: cells are the views' own.

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from posevote.inference.search import SearchOptions
 from posevote.model.pruning import PRESETS
 from posevote.model.training import train_model
 
@@ -92,9 +93,12 @@ def test_extending_a_model_equals_training_on_everything(synthetic_training, dra
     from posevote.data import object_box
 
     boxes = np.array([object_box(img) for img in scaled])
-    whole = PoseEstimator(prune="moderate").fit(scaled, az, boxes=boxes, instances=names)
-    first = PoseEstimator(prune="moderate").fit(scaled[:9], az[:9], boxes=boxes[:9],
-                                                instances=names[:9])
+    search = SearchOptions(rerank="template")          # the templates are carried too
+    whole = PoseEstimator(prune="moderate", search=search).fit(scaled, az, boxes=boxes,
+                                                                instances=names)
+    first = PoseEstimator(prune="moderate", search=search).fit(scaled[:9], az[:9],
+                                                                boxes=boxes[:9],
+                                                                instances=names[:9])
     first.save(tmp_path / "a.npz")
     grown = PoseEstimator.load(tmp_path / "a.npz").partial_fit(
         scaled[9:], az[9:], boxes=boxes[9:], instances=names[9:])

@@ -118,7 +118,8 @@ class SearchOptions(Options):
         by the share of the test edges in their box that they explain
         (:mod:`posevote.inference.coverage`), ``"template"`` by how well the
         image matches the nearest training view's grey levels there
-        (:mod:`posevote.inference.templates`); None: by their score alone.
+        (:mod:`posevote.inference.templates`; the templates are learnt when
+        the model is fitted with it); None: by their score alone.
     """
 
     viewpoint_step_deg: float | None = None

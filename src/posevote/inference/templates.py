@@ -216,8 +216,9 @@ def pose_correlations(model: PoseModel, image: NDArray[np.floating],
         If the model has no templates (trained by a posevote without them).
     """
     if model.view_template is None or model.view_template_cell is None:
-        raise ValueError("SearchOptions.rerank='template' needs a model with the views' "
-                         "templates; fit it again")
+        raise ValueError("SearchOptions.rerank='template' needs the views' templates, "
+                         "learnt when the model is fitted with it; fit (or retrain) with "
+                         "search.rerank='template'")
     nearest = np.argmax(viewing_direction(azimuth, elevation) @ viewing_direction(
         model.view_azimuth, model.view_elevation).T, axis=1)
     views, view_of = np.unique(nearest, return_inverse=True)

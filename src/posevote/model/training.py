@@ -1,9 +1,10 @@
 """Training (Sec. II-A, II-C, III-A): pose-annotated images to a weighted, optionally pruned model.
 
 :func:`train_model` reads each training image once: its edges inside the
-object's box (and mask), its grey template (:mod:`posevote.model.templates`),
-its appearance descriptors when the appearance stages are wanted, and its
-crop for the morphing between turntable views;
+object's box (and mask), its grey template when the template re-ranking is
+wanted (:mod:`posevote.model.templates`), its appearance descriptors when
+the appearance stages are, and its crop for the morphing between turntable
+views;
 then it builds psi (:func:`posevote.model.density.build_model`), weighs the
 features (Eq. 4) and prunes the pooled model (Sec. III-A).
 """
@@ -157,7 +158,8 @@ def train_model(images: Sequence[str | Path | NDArray], poses: ArrayLike, *,
                 instances: Sequence[str] | None = None, category: str = "",
                 edges: EdgeOptions = EdgeOptions(), kernel: KernelOptions = KernelOptions(),
                 morph: bool = False, prune: PruningPreset | None = None,
-                appearance: bool = False, progress: Callable[[int], None] | None = None,
+                appearance: bool = False, templates: bool = False,
+                progress: Callable[[int], None] | None = None,
                 channels: str = "rgb", object_height_m: float | None = None,
                 origins: ArrayLike | None = None, n_threads: int = 1) -> TrainedModel:
     """Learn a model from pose-annotated images (Sec. II-A, II-C, III-A).
@@ -176,6 +178,8 @@ def train_model(images: Sequence[str | Path | NDArray], poses: ArrayLike, *,
         Prune the pooled model with these knobs.
     appearance : bool
         Learn the appearance model (descriptors, classifier, box regressions).
+    templates : bool
+        Keep each view's grey template (the template re-ranking's).
     n_threads : int, optional
         Threads reading the images and weighing the instances' features: the
         time of training, not its result.
@@ -190,8 +194,8 @@ def train_model(images: Sequence[str | Path | NDArray], poses: ArrayLike, *,
                         f"path {str(images)!r} (read a training folder with read_poses_csv)")
     images = list(images)
     views = _extract(images, poses, boxes, masks, instances, edges=edges, morph=morph,
-                     appearance=appearance, progress=progress, channels=channels,
-                     n_threads=n_threads, origins=origins)
+                     appearance=appearance, templates=templates, progress=progress,
+                     channels=channels, n_threads=n_threads, origins=origins)
     return _pool(views, category=category, kernel=kernel, prune=prune, height=height,
                  n_threads=n_threads)
 
@@ -214,7 +218,7 @@ class _Views:
 
 def _extract(images: list[Any], poses: ArrayLike, boxes: ArrayLike | None,
              masks: Sequence[Any] | None, instances: Sequence[str] | None, *,
-             edges: EdgeOptions, morph: bool, appearance: bool,
+             edges: EdgeOptions, morph: bool, appearance: bool, templates: bool,
              progress: Callable[[int], None] | None, channels: str, n_threads: int = 1,
              origins: ArrayLike | None = None) -> _Views:
     """Each image's edges inside its box (and mask), box and pose (``n_threads`` images at a time)."""
@@ -222,13 +226,14 @@ def _extract(images: list[Any], poses: ArrayLike, boxes: ArrayLike | None,
     k = len(images)
     origin_arr = None if origins is None else _check_origins(origins, k)
     feats, centres, sizes = [], np.zeros((k, 2)), np.zeros((k, 2))
-    templates = np.empty((k, TEMPLATE_SIDE, TEMPLATE_SIDE), dtype=np.float16)
+    template_arr = np.empty((k, TEMPLATE_SIDE, TEMPLATE_SIDE), dtype=np.float16) \
+        if templates else None
     cells = np.zeros(k)
     collector = AppearanceCollector(box_arr) if appearance else None
     crops = ViewCrops() if morph else None
 
     def read(i: int) -> tuple[NDArray[np.float64], NDArray[np.floating], NDArray[np.float64],
-                              EdgeFeatures, tuple[NDArray[np.float16], float]]:
+                              EdgeFeatures, tuple[NDArray[np.float16], float] | None]:
         """Image ``i``, its box, its edges inside the box (and mask) and its template."""
         image = images[i]
         label = str(image) if isinstance(image, (str, Path)) else f"images[{i}]"
@@ -247,13 +252,13 @@ def _extract(images: list[Any], poses: ArrayLike, boxes: ArrayLike | None,
                              "or lower EdgeOptions.thresholds")
         # The descriptors read single-precision crops: converted once, in the thread.
         return (img, img.astype(np.float32) if appearance else img, box, f,
-                view_template(img, box, mask, float(pose_arr[i, 2])))
+                view_template(img, box, mask, float(pose_arr[i, 2])) if templates else None)
 
     # Images are read in threads; what draws random boxes runs here, in order.
-    for i, (img, img32, box, f, (template, cell)) in enumerate(thread_map(read, range(k),
-                                                                          n_threads)):
+    for i, (img, img32, box, f, template) in enumerate(thread_map(read, range(k), n_threads)):
         feats.append(f)
-        templates[i], cells[i] = template, cell
+        if template_arr is not None and template is not None:
+            template_arr[i], cells[i] = template
         if collector is not None:
             collector.add(img32, box.tolist(), float(pose_arr[i, 0]))
         if crops is not None:
@@ -263,8 +268,8 @@ def _extract(images: list[Any], poses: ArrayLike, boxes: ArrayLike | None,
         if progress is not None:
             progress(1)
     return _Views(feats=feats, centres=centres, sizes=sizes, poses=pose_arr, names=names,
-                  collector=collector, crops=crops, origins=origin_arr, templates=templates,
-                  template_cells=cells)
+                  collector=collector, crops=crops, origins=origin_arr, templates=template_arr,
+                  template_cells=None if template_arr is None else cells)
 
 
 def _check_origins(origins: ArrayLike, k: int) -> NDArray[np.float64]:
@@ -377,7 +382,8 @@ def extend_model(trained: TrainedModel, images: Sequence[str | Path | NDArray], 
         raise TypeError(f"images must be a sequence of image paths or arrays, got the single "
                         f"path {str(images)!r}")
     new = _extract(list(images), poses, boxes, masks, instances, edges=edges, morph=False,
-                   appearance=False, progress=progress, channels=channels, origins=origins)
+                   appearance=False, templates=full.view_template is not None,
+                   progress=progress, channels=channels, origins=origins)
     size = np.asarray(full.instance_size or [1.0] * len(full.instance_names), dtype=np.float64)
     old_feats = []
     for k in range(full.n_views):
