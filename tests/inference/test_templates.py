@@ -46,7 +46,7 @@ def test_an_empty_template_correlates_zero():
     px = template_pixels(np.full((TEMPLATE_SIDE, TEMPLATE_SIDE), np.nan, dtype=np.float16))
     assert len(px.tile) == 0
     assert tile_correlation(px.value, px.value, px.tile) == 0.0
-    out = correlations(np.zeros((1, 8, 8), np.float32), np.zeros(1, np.int64),
+    out = correlations(np.zeros((8, 8), np.float32),
                        template_frame(np.array([[4.0, 4.0]]), np.array([0.1]), np.zeros(1)),
                        np.zeros(1, np.int64), [px])
     assert out.tolist() == [0.0]
@@ -67,7 +67,8 @@ def test_compiled_correlations_equal_the_numpy_reference():
     frames = template_frame(rng.uniform(-10, 90, (n, 2)), rng.uniform(0.2, 1.2, n),
                             rng.uniform(-np.pi, np.pi, n))
     image_of, view_of = rng.integers(0, 2, n), rng.integers(0, 2, n)
-    got = correlations(images, image_of, frames, view_of, pixels)
+    got = np.array([correlations(images[image_of[i]], frames[i:i + 1], view_of[i:i + 1],
+                                 pixels)[0] for i in range(n)])
     for i in range(n):
         px = pixels[view_of[i]]
         xy = px.xy @ frames[i, :, :2].T + frames[i, :, 2]

@@ -121,16 +121,15 @@ def tile_correlation(x: NDArray[np.floating], y: NDArray[np.floating],
 # One pass over each candidate's template pixels where numpy sampled, then
 # binned six sums; tile_correlation and sample_bilinear are its reference.
 @numba.njit(cache=True, nogil=True)
-def _correlations(images, image_of, frames, view_of, start, xy, tile, value, n_tiles, keep,
-                  min_pixels, out):  # pragma: no cover - compiled
-    """For each candidate ``n``: ``images[image_of[n]]`` sampled at the pixels of view
-    ``view_of[n]`` (``start[v]:start[v + 1]`` of ``xy``, ``tile``, ``value``) mapped by
-    ``frames[n]``, correlated tile by tile, the best ``keep`` share averaged."""
-    _, h, w = images.shape
+def _correlations(img, frames, view_of, start, xy, tile, value, n_tiles, keep, min_pixels,
+                  out):  # pragma: no cover - compiled
+    """For each candidate ``n``: ``img`` sampled at the pixels of view ``view_of[n]``
+    (``start[v]:start[v + 1]`` of ``xy``, ``tile``, ``value``) mapped by ``frames[n]``,
+    correlated tile by tile, the best ``keep`` share averaged."""
+    h, w = img.shape
     sums = np.zeros((n_tiles, 6))
     ncc = np.zeros(n_tiles)
     for n in range(frames.shape[0]):
-        img = images[image_of[n]]
         f = frames[n]
         sums[:, :] = 0.0
         for p in range(start[view_of[n]], start[view_of[n] + 1]):
@@ -169,17 +168,14 @@ def _correlations(images, image_of, frames, view_of, start, xy, tile, value, n_t
         out[n] = best[:kept].mean()
 
 
-def correlations(images: NDArray[np.float32], image_of: NDArray[np.int64],
-                 frames: NDArray[np.float64], view_of: NDArray[np.int64],
-                 pixels: list[TemplatePixels]) -> NDArray[np.float64]:
+def correlations(image: NDArray[np.float32], frames: NDArray[np.float64],
+                 view_of: NDArray[np.int64], pixels: list[TemplatePixels]) -> NDArray[np.float64]:
     """Each candidate's tiled correlation (:func:`tile_correlation`), compiled.
 
     Parameters
     ----------
-    images : ndarray of float32, shape (B, H, W)
-        The test image blurred for each scale.
-    image_of : ndarray of int, shape (N,)
-        The blurred image each candidate reads.
+    image : ndarray of float32, shape (H, W)
+        The test image, blurred for the candidates' scale.
     frames : ndarray, shape (N, 2, 3)
         Each candidate's map from template pixels to image pixels
         (:func:`posevote.model.templates.template_frame`).
@@ -193,9 +189,8 @@ def correlations(images: NDArray[np.float32], image_of: NDArray[np.int64],
     """
     start = np.concatenate([[0], np.cumsum([len(p.tile) for p in pixels])]).astype(np.int64)
     out = np.empty(len(frames))
-    _correlations(np.ascontiguousarray(images, dtype=np.float32),
-                  np.asarray(image_of, dtype=np.int64), np.asarray(frames, dtype=np.float64),
-                  np.asarray(view_of, dtype=np.int64), start,
+    _correlations(np.ascontiguousarray(image, dtype=np.float32),
+                  np.asarray(frames, dtype=np.float64), np.asarray(view_of, dtype=np.int64), start,
                   np.vstack([p.xy for p in pixels] + [np.zeros((0, 2))]),
                   np.concatenate([p.tile for p in pixels] + [np.zeros(0, np.int64)]),
                   np.concatenate([p.value for p in pixels] + [np.zeros(0)]),
@@ -234,8 +229,7 @@ def pose_correlations(model: PoseModel, image: NDArray[np.floating],
         # Blurred as the templates were, in template pixels at this scale.
         blurred = np.asarray(cv2.GaussianBlur(grey, (0, 0), TEMPLATE_BLUR * cell * float(f)),
                              dtype=np.float32)
-        out[at] = correlations(blurred[None], np.zeros(len(at), dtype=np.int64), frames[at],
-                               view_of[at], pixels)
+        out[at] = correlations(blurred, frames[at], view_of[at], pixels)
     return out
 
 
