@@ -45,6 +45,26 @@ def test_finds_shifted_rotated_scaled_object(synthetic_training, draw):
     assert 0.8 <= smaller.scale < best.scale <= 1.25
 
 
+def test_a_model_fitted_with_masks_boxes_poses_by_their_outline(synthetic_training, draw):
+    from posevote.model.kernels import K1_CUTOFF
+    from posevote.model.outline import outline_at, outline_box
+
+    images, az, boxes = synthetic_training
+    options = {"search": SearchOptions(inplane_range_deg=(-30, 30), scale_range=(0.9, 1.1),
+                                       scale_steps=3)}
+    img = draw(np.radians(20.0), inplane=np.radians(30), centre=(64.0, 64.0))
+    boxed = PoseEstimator(**options).fit(images, az, boxes=boxes)
+    assert boxed.model_.view_outline is None            # the view's box, turned
+    masked = PoseEstimator(**options).fit(images, az, boxes=boxes,
+                                          masks=[im > 0.05 for im in images])
+    best = masked.estimate(img).best
+    assert best.inplane_deg == pytest.approx(30.0, abs=8.0)
+    outline = outline_at(masked.model_, best.azimuth, best.elevation,
+                         kappa=masked.viewpoint_kappa_, k1_cutoff=K1_CUTOFF)
+    np.testing.assert_allclose(best.box, outline_box(outline, best.position, best.scale,
+                                                     best.inplane))
+
+
 def test_same_input_same_output(fitted_estimator, draw):
     img = draw(np.radians(77.0))
     a, b = fitted_estimator.estimate(img), fitted_estimator.estimate(img)

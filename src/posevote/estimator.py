@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -39,6 +40,7 @@ from posevote.inference.verification import verify
 from posevote.model.appearance import AppearanceModel, AppearanceOptions
 from posevote.model.density import PoseModel, origin_offset
 from posevote.model.kernels import K1_CUTOFF, KernelOptions
+from posevote.model.outline import outline_at, outline_box
 from posevote.model.pruning import PruningPreset, resolve_preset
 from posevote.model.training import TrainedModel, extend_model, train_model
 from posevote.presets import get_preset, nearest_preset
@@ -384,6 +386,8 @@ class PoseEstimator(GroupedParams):
         if self.appearance is not None and hyps:
             hyps[0] = appearance_refine(hyps[0], grey, model, self._appearance_model(),
                                         self.appearance, verified_box=verified_box)
+        if self.appearance is None:
+            hyps = [self._outlined(h) for h in hyps]
         kept_hyps = with_probabilities([h for h in hyps if h.score > self.min_score], probes)
         kept = tuple(place_all(kept_hyps, camera, reference_size_px=model.reference_size,
                                object_height_m=self.object_height_m_,
@@ -418,6 +422,16 @@ class PoseEstimator(GroupedParams):
                                                                   "inplane", "scale",
                                                                   "position")))
         return correlate
+
+    def _outlined(self, hypothesis: Hypothesis) -> Hypothesis:
+        """The hypothesis with the box of its view's outline, where the model has outlines
+        (they bound the object tighter than the view's box turned)."""
+        outline = outline_at(self._check_fitted(), hypothesis.azimuth, hypothesis.elevation,
+                             kappa=self.viewpoint_kappa_, k1_cutoff=K1_CUTOFF)
+        if outline is None:
+            return hypothesis
+        return replace(hypothesis, box=outline_box(outline, hypothesis.position, hypothesis.scale,
+                                                   hypothesis.inplane))
 
     def _origin(self, hypothesis: Hypothesis) -> tuple[float, float, float] | None:
         """The image of the object's origin under a hypothesis and its depth factor (None:

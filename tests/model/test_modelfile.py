@@ -84,6 +84,24 @@ def test_view_templates_round_trip_and_are_checked(tmp_path, toy_model):
         load_model(tmp_path / "half.npz")
 
 
+def test_view_outlines_round_trip_and_are_checked(tmp_path, toy_model):
+    from dataclasses import replace
+
+    from posevote.model.outline import OUTLINE_ANGLES
+
+    model = toy_model()
+    outline = np.random.default_rng(0).uniform(5.0, 20.0, (model.n_views, OUTLINE_ANGLES))
+    save_model(tmp_path / "m.npz", _trained(replace(model, view_outline=outline)), {})
+    np.testing.assert_array_equal(load_model(tmp_path / "m.npz")[0].model.view_outline, outline)
+    nan, flat = outline.copy(), outline.copy()
+    nan[0, 3] = np.nan
+    flat[1] = 0.0                                       # no extent at all
+    for bad in (outline[:-1], outline[:, :-1], nan, flat):
+        _rewrite(tmp_path / "m.npz", tmp_path / "bad.npz", view_outline=bad)
+        with pytest.raises(ValueError, match="bad.npz: corrupt model file .*inconsistent"):
+            load_model(tmp_path / "bad.npz")
+
+
 def test_model_file_errors(tmp_path, toy_model):
     with pytest.raises(FileNotFoundError, match="model file not found"):
         load_model(tmp_path / "none.npz")

@@ -32,6 +32,20 @@ def test_bad_training_input(synthetic_training):
         train_model(images[:2], az[:2], instances=["a"])
 
 
+def test_masks_give_outlines_and_views_without_one_their_box(synthetic_training):
+    from posevote.model.outline import box_outline
+
+    images, az, boxes = synthetic_training
+    assert train_model(images, az, boxes=boxes).model.view_outline is None
+    masks = [im > 0.05 if i % 2 else None for i, im in enumerate(images)]
+    model = train_model(images, az, boxes=boxes, masks=masks).full_model
+    assert model.view_outline is not None and model.view_outline.shape == (18, 36)
+    np.testing.assert_allclose(model.view_outline[0], box_outline(model.view_box[0]))
+    # A mask's hull lies inside its box (to the pixel) and is narrower somewhere.
+    box = box_outline(model.view_box[1])
+    assert np.all(model.view_outline[1] <= box + 1.0) and np.any(model.view_outline[1] < box - 1)
+
+
 def test_masks_instances_and_pruning(synthetic_training):
     images, az, _ = synthetic_training
     masks = [im > 0.05 for im in images]
@@ -93,17 +107,18 @@ def test_extending_a_model_equals_training_on_everything(synthetic_training, dra
     from posevote.data import object_box
 
     boxes = np.array([object_box(img) for img in scaled])
-    search = SearchOptions(rerank="template")          # the templates are carried too
+    masks = [img > 0.05 for img in scaled]              # the outlines are carried too
+    search = SearchOptions(rerank="template")          # and the templates
     whole = PoseEstimator(prune="moderate", search=search).fit(scaled, az, boxes=boxes,
-                                                                instances=names)
+                                                                masks=masks, instances=names)
     first = PoseEstimator(prune="moderate", search=search).fit(scaled[:9], az[:9],
-                                                                boxes=boxes[:9],
+                                                                boxes=boxes[:9], masks=masks[:9],
                                                                 instances=names[:9])
     first.save(tmp_path / "a.npz")
     grown = PoseEstimator.load(tmp_path / "a.npz").partial_fit(
-        scaled[9:], az[9:], boxes=boxes[9:], instances=names[9:])
+        scaled[9:], az[9:], boxes=boxes[9:], masks=masks[9:], instances=names[9:])
     for name in ("xy", "theta", "view", "weight", "view_azimuth", "view_box", "view_instance",
-                 "view_template", "view_template_cell"):
+                 "view_template", "view_template_cell", "view_outline"):
         np.testing.assert_allclose(getattr(grown.full_model_, name),
                                    getattr(whole.full_model_, name), atol=1e-9, err_msg=name)
     assert grown.full_model_.instance_names == whole.full_model_.instance_names == ("a", "b")

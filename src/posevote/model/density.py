@@ -79,6 +79,11 @@ class PoseModel:
     view_template_cell : ndarray, shape (K,), or None
         Reference pixels per template pixel of each view; present with
         ``view_template``.
+    view_outline : ndarray, shape (K, A), or None
+        Each view's outline: the extent of its mask's convex hull from the
+        reference point in ``A`` directions, reference pixels, upright
+        (:mod:`posevote.model.outline`; a view without a mask: its box);
+        None: trained without masks (a pose's box is its view's box turned).
     """
 
     xy: NDArray[np.float64]
@@ -98,6 +103,7 @@ class PoseModel:
     view_origin: NDArray[np.float64] | None = None
     view_template: NDArray[np.float16] | None = None
     view_template_cell: NDArray[np.float64] | None = None
+    view_outline: NDArray[np.float64] | None = None
 
     def size_of(self, instance: int) -> float:
         """The training size of an instance relative to the reference (1.0 if unknown)."""
@@ -201,7 +207,9 @@ class PoseModel:
                       view_template=None if self.view_template is None
                       else self.view_template[views],
                       view_template_cell=None if self.view_template_cell is None
-                      else self.view_template_cell[views])
+                      else self.view_template_cell[views],
+                      view_outline=None if self.view_outline is None
+                      else self.view_outline[views])
         return PoseModel(**fields)
 
     def with_weights(self, weight: NDArray[np.float64]) -> PoseModel:

@@ -16,7 +16,8 @@ the searched model; ``full_*`` feature arrays when it is pruned (the full
 model, for recognition and refinement); ``shift`` and ``view_neighbour``
 for morphed models; ``view_origin`` when training gave the object's origin;
 ``view_template`` (float16, NaN outside the object) and
-``view_template_cell``, the views' grey templates;
+``view_template_cell``, the views' grey templates; ``view_outline`` when
+training gave masks;
 ``view_descriptor``, ``objectness`` and ``box_regressor`` for the
 appearance stages. Version 5 is the only version read: files of versions
 1-2 name parameters that no longer exist, version 3's appearance options
@@ -38,6 +39,7 @@ from posevote.camera import check_object_height
 from posevote.features.appearance import descriptor_length
 from posevote.model.appearance import AppearanceModel
 from posevote.model.density import PoseModel
+from posevote.model.outline import OUTLINE_ANGLES
 from posevote.model.training import TrainedModel
 
 FORMAT_NAME = "posevote-model"
@@ -54,7 +56,7 @@ _FEATURE_ARRAYS = ("xy", "theta", "view", "weight")
 _ARRAYS = (*_FEATURE_ARRAYS, "view_azimuth", "view_elevation", "view_box", "view_instance")
 _MORPH_ARRAYS = ("shift", "view_neighbour")
 #: Optional per-view arrays, written when the model has them.
-_VIEW_OPTIONAL = ("view_origin", "view_template", "view_template_cell")
+_VIEW_OPTIONAL = ("view_origin", "view_template", "view_template_cell", "view_outline")
 
 
 def save_model(path: str | Path, trained: TrainedModel, params: dict[str, Any], *,
@@ -307,6 +309,13 @@ def _build(path: Path, arrays: dict[str, np.ndarray], header: dict[str, Any]) ->
                      and not np.any(np.isinf(template))
                      and cell.shape == (k,) and np.issubdtype(cell.dtype, np.number)
                      and bool(np.all(np.isfinite(cell) & (cell > 0))))
+    outline = arrays.get("view_outline")
+    if outline is not None:
+        # One support function per view, of an outline with some extent across every direction.
+        shapes_ok = (shapes_ok and outline.shape == (k, OUTLINE_ANGLES)
+                     and np.issubdtype(outline.dtype, np.number)
+                     and bool(np.all(np.isfinite(outline)))
+                     and bool(np.all(outline + np.roll(outline, OUTLINE_ANGLES // 2, axis=1) > 0)))
     if not shapes_ok:
         raise ValueError(f"{path}: corrupt model file (inconsistent array shapes)")
     for name in ("xy", "theta", "weight", "view_azimuth", "view_elevation", "view_box"):
@@ -343,4 +352,5 @@ def _build(path: Path, arrays: dict[str, np.ndarray], header: dict[str, Any]) ->
         view_origin=None if origin is None else origin.astype(np.float64),
         view_template=None if template is None else template.astype(np.float16),
         view_template_cell=None if cell is None else cell.astype(np.float64),
+        view_outline=None if outline is None else outline.astype(np.float64),
     )

@@ -35,6 +35,7 @@ from posevote.model.appearance import AppearanceCollector, AppearanceModel
 from posevote.model.density import PoseModel, build_model, viewpoint_kappa
 from posevote.model.kernels import ORIENTATION_KAPPA, KernelOptions
 from posevote.model.morph import ViewCrops, turntable_neighbours, view_shifts
+from posevote.model.outline import OUTLINE_ANGLES, box_outline, mask_outline
 from posevote.model.pruning import PruningPreset, prune_model
 from posevote.model.templates import TEMPLATE_SIDE, view_template
 from posevote.model.weights import feature_weights
@@ -214,6 +215,7 @@ class _Views:
     origins: NDArray[np.float64] | None = None
     templates: NDArray[np.float16] | None = None
     template_cells: NDArray[np.float64] | None = None
+    outlines: NDArray[np.float64] | None = None
 
 
 def _extract(images: list[Any], poses: ArrayLike, boxes: ArrayLike | None,
@@ -229,12 +231,15 @@ def _extract(images: list[Any], poses: ArrayLike, boxes: ArrayLike | None,
     template_arr = np.empty((k, TEMPLATE_SIDE, TEMPLATE_SIDE), dtype=np.float16) \
         if templates else None
     cells = np.zeros(k)
+    outlines, masked = np.zeros((k, OUTLINE_ANGLES)), False
     collector = AppearanceCollector(box_arr) if appearance else None
     crops = ViewCrops() if morph else None
 
     def read(i: int) -> tuple[NDArray[np.float64], NDArray[np.floating], NDArray[np.float64],
-                              EdgeFeatures, tuple[NDArray[np.float16], float] | None]:
-        """Image ``i``, its box, its edges inside the box (and mask) and its template."""
+                              EdgeFeatures, tuple[NDArray[np.float16], float] | None,
+                              NDArray[np.float64] | None]:
+        """Image ``i``, its box, its edges inside the box (and mask), its template and its
+        mask's outline."""
         image = images[i]
         label = str(image) if isinstance(image, (str, Path)) else f"images[{i}]"
         img = load_image(image, name=label, channels=channels)
@@ -250,13 +255,19 @@ def _extract(images: list[Any], poses: ArrayLike, boxes: ArrayLike | None,
         if len(f) == 0:
             raise ValueError(f"{label}: no edges found on the object; check the box/mask "
                              "or lower EdgeOptions.thresholds")
+        inside = None if mask is None else mask & box_mask(img.shape, box)
         # The descriptors read single-precision crops: converted once, in the thread.
         return (img, img.astype(np.float32) if appearance else img, box, f,
-                view_template(img, box, mask, float(pose_arr[i, 2])) if templates else None)
+                view_template(img, box, mask, float(pose_arr[i, 2])) if templates else None,
+                mask_outline(inside, box_centre(box), float(pose_arr[i, 2]))
+                if inside is not None and inside.any() else None)
 
     # Images are read in threads; what draws random boxes runs here, in order.
-    for i, (img, img32, box, f, template) in enumerate(thread_map(read, range(k), n_threads)):
+    for i, (img, img32, box, f, template, outline) in enumerate(thread_map(read, range(k),
+                                                                          n_threads)):
         feats.append(f)
+        outlines[i] = box_outline(box[2:]) if outline is None else outline
+        masked |= outline is not None
         if template_arr is not None and template is not None:
             template_arr[i], cells[i] = template
         if collector is not None:
@@ -269,7 +280,8 @@ def _extract(images: list[Any], poses: ArrayLike, boxes: ArrayLike | None,
             progress(1)
     return _Views(feats=feats, centres=centres, sizes=sizes, poses=pose_arr, names=names,
                   collector=collector, crops=crops, origins=origin_arr, templates=template_arr,
-                  template_cells=None if template_arr is None else cells)
+                  template_cells=None if template_arr is None else cells,
+                  outlines=outlines if masked else None)
 
 
 def _check_origins(origins: ArrayLike, k: int) -> NDArray[np.float64]:
@@ -323,6 +335,8 @@ def _pool(views: _Views, *, category: str, kernel: KernelOptions, prune: Pruning
         # Template pixels in reference pixels, as the features.
         model = replace(model, view_template=views.templates,
                         view_template_cell=views.template_cells / scales)
+    if views.outlines is not None:
+        model = replace(model, view_outline=views.outlines / scales[:, None])
     if crops is not None:
         neighbours = turntable_neighbours(model.view_azimuth, model.view_elevation,
                                           model.view_instance)
@@ -339,6 +353,19 @@ def _pool(views: _Views, *, category: str, kernel: KernelOptions, prune: Pruning
                         appearance=None if collector is None
                         else collector.finish(sizes, n_threads),
                         pruning=None if prune is None else asdict(prune), object_height_m=height)
+
+
+def _outlines(full: PoseModel, size: NDArray[np.float64], new: _Views
+              ) -> NDArray[np.float64] | None:
+    """The old and new views' outlines at their training sizes (a view without a mask:
+    its box), None if no view has one."""
+    if full.view_outline is None and new.outlines is None:
+        return None
+    old = full.view_outline if full.view_outline is not None \
+        else np.array([box_outline(b) for b in full.view_box]).reshape(-1, OUTLINE_ANGLES)
+    added = new.outlines if new.outlines is not None \
+        else np.array([box_outline(b) for b in new.sizes]).reshape(-1, OUTLINE_ANGLES)
+    return np.vstack([old * size[full.view_instance][:, None], added])
 
 
 def extend_model(trained: TrainedModel, images: Sequence[str | Path | NDArray], poses: ArrayLike,
@@ -405,6 +432,7 @@ def extend_model(trained: TrainedModel, images: Sequence[str | Path | NDArray], 
                    else np.concatenate([full.view_template, new.templates]),
                    template_cells=None if full.view_template_cell is None
                    or new.template_cells is None else np.concatenate(
-                       [full.view_template_cell * size[full.view_instance], new.template_cells]))
+                       [full.view_template_cell * size[full.view_instance], new.template_cells]),
+                   outlines=_outlines(full, size, new))
     return _pool(views, category=full.category, kernel=kernel, prune=prune,
                  height=trained.object_height_m)
