@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from posevote.geometry import rotate_points
 from posevote.model.density import PoseModel, viewpoint_weights
@@ -31,7 +31,7 @@ def _directions() -> NDArray[np.float64]:
     return np.column_stack([np.cos(angles), np.sin(angles)])
 
 
-def mask_outline(mask: NDArray[np.bool_], centre: NDArray[np.float64], inplane: float
+def mask_outline(mask: NDArray[np.bool_], centre: ArrayLike, inplane: float
                  ) -> NDArray[np.float64]:
     """The support function of a mask's convex hull, shape (:data:`OUTLINE_ANGLES`,).
 
