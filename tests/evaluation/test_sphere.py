@@ -25,7 +25,8 @@ def test_run_writes_the_report_and_is_reproducible(tmp_path):
     setup = SphereSetup(n_images=2, **_SMALL)
     seen = []
     summary = run_sphere(setup, tmp_path / "a", progress=lambda d, t: seen.append((d, t)))
-    assert seen[-1] == (2, 2) and summary["n"] == 2 and summary["n_training_views"] == 36
+    assert seen[-1] == (2, 2) and summary["n"] == 2 and summary["n_training_views"] == \
+        2 * 360 // sphere.AZIMUTH_STEP_DEG
     for name in ("model.npz", "records.jsonl", "summary.json", "report.md",
                  "rotation_errors.png"):
         assert (tmp_path / "a" / name).stat().st_size > 0
