@@ -157,6 +157,8 @@ def test_estimate_threads(model, image, threads):
     ("edges.thresholds=(0.5, 0.1)", "thresholds"),
     ("edges.thresholds='ab'", "thresholds"),
     ("search.scale_range=(1, 1e6)", "scale_range"),
+    ("kernel.position_sigma=nan", "position_sigma"),       # a word: refused by its group
+    ("search.rerank=templates", "rerank"),
 ])
 def test_train_param_values(folder, tmp_path, param, name):
     out = tmp_path / "m.npz"
@@ -168,7 +170,7 @@ def test_train_param_values(folder, tmp_path, param, name):
     ("nosuch=1", "unknown estimator parameter"),
     ("search.nosuch=1", "unknown estimator parameter"),
     ("search=1", "one by one"),
-    ("kernel.position_sigma=nan", "Python literal"),
+    ("kernel.position_sigma=(1,", "neither a Python literal"),
     ("kernel.position_sigma", "NAME=VALUE"),
 ])
 def test_train_param_syntax(folder, tmp_path, param, text):

@@ -44,3 +44,14 @@ def test_groups_are_frozen():
 
     with pytest.raises(dataclasses.FrozenInstanceError):
         SearchOptions().scale_steps = 5  # type: ignore[misc]
+
+
+def test_settings_read_literals_and_bare_words():
+    from posevote._options import parse_setting
+
+    assert parse_setting(" 5 ") == 5 and parse_setting("(0.8, 1.2)") == (0.8, 1.2)
+    assert parse_setting("None") is None and parse_setting("'template'") == "template"
+    assert parse_setting("template") == "template" and parse_setting("nan") == "nan"
+    for bad in ("(1,", "a b", ""):
+        with pytest.raises(ValueError, match="neither a Python literal"):
+            parse_setting(bad)

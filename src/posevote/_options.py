@@ -8,9 +8,11 @@ the accepted range.
 
 from __future__ import annotations
 
+import ast
 import dataclasses
 import inspect
 import math
+import re
 from typing import Any, ClassVar, TypeVar
 
 import numpy as np
@@ -89,6 +91,25 @@ class Options:
         values = {k: (tuple(v) if isinstance(v, list) else v) for k, v in data.items()}
         return cls(**values)
 
+
+
+def parse_setting(text: str) -> Any:
+    """A ``NAME=VALUE`` setting's value as written on a command line: a Python literal
+    (``5``, ``(0.8, 1.2)``, ``None``), else one bare word as a string (``template``).
+
+    Raises
+    ------
+    ValueError
+        For anything else (``(1,``, ``a b``).
+    """
+    text = text.strip()
+    try:
+        return ast.literal_eval(text)
+    except (ValueError, SyntaxError):
+        if re.fullmatch(r"[A-Za-z_][A-Za-z0-9_.-]*", text):
+            return text
+        raise ValueError(f"{text!r} is neither a Python literal (number, True/False, None, "
+                         "tuple, quoted string) nor a word") from None
 
 
 def params_to_json(params: dict[str, Any]) -> dict[str, Any]:

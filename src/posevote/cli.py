@@ -13,7 +13,6 @@ Exit codes
 
 from __future__ import annotations
 
-import ast
 import json
 import math
 import sys
@@ -104,6 +103,7 @@ def _parse_params(items: tuple[str, ...]) -> dict[str, Any]:
     """``--param`` items as :meth:`PoseEstimator.set_params` keys (``group.field`` -> ``group__field``)."""
     import dataclasses
 
+    from posevote._options import parse_setting
     from posevote.estimator import OPTION_GROUPS, PoseEstimator
 
     params: dict[str, Any] = {}
@@ -124,11 +124,9 @@ def _parse_params(items: tuple[str, ...]) -> dict[str, Any]:
                                      f"({group}.FIELD=VALUE), or {group}=None to switch it off",
                                      param_hint="--param")
         try:
-            params[f"{group}__{field}" if dot else group] = ast.literal_eval(value.strip())
-        except (ValueError, SyntaxError):
-            raise click.BadParameter(f"{item!r}: VALUE must be a Python literal "
-                                     "(number, True/False, None, tuple)", param_hint="--param"
-                                     ) from None
+            params[f"{group}__{field}" if dot else group] = parse_setting(value)
+        except ValueError as err:
+            raise click.BadParameter(f"{item!r}: {err}", param_hint="--param") from None
     return params
 
 
