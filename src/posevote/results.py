@@ -21,7 +21,11 @@ class Hypothesis:
         Image position ``(u, v)`` of the object's reference point (``w3``),
         pixels.
     box : (float, float, float, float)
-        Object box ``(x, y, w, h)``, pixels.
+        Object box ``(x, y, w, h)``, pixels: the outline of the views near
+        the viewpoint turned, scaled and placed, for a model fitted with
+        masks (:mod:`posevote.model.outline`); else their box turned (its
+        bounding box, loose under an in-plane angle), or the appearance
+        stage's regressed box.
     score : float
         ``p(w)`` at the best probe of this mode: the weighted fraction of the
         model's features explained by the image.
