@@ -8,7 +8,7 @@ by a median 0.70-0.74. Where training gives masks, each view keeps the
 support function of its mask's convex hull (its extent in
 :data:`OUTLINE_ANGLES` directions from the reference point, upright), and a
 pose's box is the extent of that outline turned, scaled and placed: exact
-for the hull at the sampled directions, and the training box itself at
+for the hull at the sampled directions, and the mask's own box at
 in-plane 0 (a median overlap of 0.96-0.98 for the same perfect poses).
 """
 
