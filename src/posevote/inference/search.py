@@ -30,7 +30,7 @@ from posevote.inference.voting import (
     strongest_voters,
     subsample_features,
 )
-from posevote.model.density import PoseModel, viewpoint_weights
+from posevote.model.density import PoseModel, near_views
 from posevote.model.kernels import K1_CUTOFF, ORIENTATION_KAPPA
 from posevote.model.morph import morphed_positions
 from posevote.results import Hypothesis
@@ -420,10 +420,7 @@ def viewpoint_features(model: PoseModel, azimuth: float, elevation: float, *,
     (the nearest view always takes part). With a morphed model (``model.shift``)
     the features move toward the viewpoint (:mod:`posevote.model.morph`).
     """
-    k1 = viewpoint_weights(model, azimuth, elevation, kappa=viewpoint_kappa)
-    views = np.flatnonzero(k1 >= k1_cutoff)
-    if len(views) == 0:
-        views = np.array([int(np.argmax(k1))])
+    views, k1 = near_views(model, azimuth, elevation, kappa=viewpoint_kappa, k1_cutoff=k1_cutoff)
     idx = model.features_of(views)
     w = k1[model.view[idx]] * (model.weight[idx] if use_weights else 1.0)
     total = w.sum()

@@ -318,11 +318,28 @@ def origin_offset(model: PoseModel, azimuth: float, elevation: float, *, kappa: 
         return None
     origin = model.view_origin if model.view_origin.shape[1] == 3 else np.column_stack(
         [model.view_origin, np.ones(model.n_views)])
+    return view_average(model, origin, azimuth, elevation, kappa=kappa, k1_cutoff=k1_cutoff)
+
+
+def near_views(model: PoseModel, azimuth: float, elevation: float, *, kappa: float,
+               k1_cutoff: float) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
+    """The training views whose pose kernel K1 at a viewpoint reaches ``k1_cutoff`` (the
+    nearest alone if none does), and K1 at every view, shape (K,)."""
     k1 = viewpoint_weights(model, azimuth, elevation, kappa=kappa)
     views = np.flatnonzero(k1 >= k1_cutoff)
     if len(views) == 0 or not k1[views].sum() > 0:
-        return origin[int(np.argmax(k1))].copy()
-    return np.average(origin[views], axis=0, weights=k1[views])
+        views = np.array([int(np.argmax(k1))])
+    return views, k1
+
+
+def view_average(model: PoseModel, values: NDArray[np.float64], azimuth: float,
+                 elevation: float, *, kappa: float, k1_cutoff: float) -> NDArray[np.float64]:
+    """A per-view quantity (one row per training view) at a viewpoint: averaged with K1
+    over :func:`near_views`, the nearest view's own row where it is alone."""
+    views, k1 = near_views(model, azimuth, elevation, kappa=kappa, k1_cutoff=k1_cutoff)
+    if len(views) == 1:
+        return np.array(values[views[0]], dtype=np.float64)
+    return np.asarray(np.average(values[views], axis=0, weights=k1[views]), dtype=np.float64)
 
 
 def image_density(features: EdgeFeatures, x_xy: NDArray[np.float64], x_theta: NDArray[np.float64],

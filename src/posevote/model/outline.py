@@ -19,7 +19,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from posevote.geometry import rotate_points
-from posevote.model.density import PoseModel, viewpoint_weights
+from posevote.model.density import PoseModel, view_average
 
 #: Directions of the support function, evenly from 0 (a multiple of 4, so that
 #: the box of an upright pose reads four samples exactly).
@@ -89,9 +89,5 @@ def outline_at(model: PoseModel, azimuth: float, elevation: float, *, kappa: flo
     view alone if none), as the box is; None for a model without them."""
     if model.view_outline is None:
         return None
-    k1 = viewpoint_weights(model, azimuth, elevation, kappa=kappa)
-    views = np.flatnonzero(k1 >= k1_cutoff)
-    if len(views) == 0 or not k1[views].sum() > 0:
-        return np.asarray(model.view_outline[int(np.argmax(k1))], dtype=np.float64)
-    return np.asarray(np.average(model.view_outline[views], axis=0, weights=k1[views]),
-                      dtype=np.float64)
+    return view_average(model, model.view_outline, azimuth, elevation, kappa=kappa,
+                        k1_cutoff=k1_cutoff)
