@@ -90,3 +90,23 @@ def test_cached_radius_and_viewpoints_are_what_they_summarise(toy_model):
     np.testing.assert_array_equal(pairs[:, 0], np.unique(np.round(az, 9)))
     with pytest.raises(ValueError):
         pairs[0, 0] = 1.0
+
+
+def test_near_views_and_their_average(toy_model):
+    from posevote.model.density import near_views, view_average
+
+    model = toy_model()
+    values = np.arange(model.n_views * 2, dtype=float).reshape(-1, 2)
+    az, el = float(model.view_azimuth[1]), float(model.view_elevation[1])
+    # A sharp kernel: only the view itself, whose own row comes back.
+    views, k1 = near_views(model, az, el, kappa=1e4, k1_cutoff=0.1)
+    assert views.tolist() == [1] and k1.shape == (model.n_views,)
+    np.testing.assert_array_equal(view_average(model, values, az, el, kappa=1e4, k1_cutoff=0.1),
+                                  values[1])
+    # A cutoff no view reaches: the nearest alone.
+    assert near_views(model, az, el, kappa=1e4, k1_cutoff=2.0)[0].tolist() == [1]
+    # A flat kernel: every view, averaged with its weight.
+    views, k1 = near_views(model, az, el, kappa=1e-6, k1_cutoff=0.1)
+    assert len(views) == model.n_views
+    np.testing.assert_allclose(view_average(model, values, az, el, kappa=1e-6, k1_cutoff=0.1),
+                               np.average(values, axis=0, weights=k1))
