@@ -20,8 +20,8 @@ def test_weights_penalise_the_shared_feature(toy_model):
 
 
 @pytest.mark.parametrize("layout", ["square", "row", "duplicates", "far apart"])
-def test_weights_dense_and_sorted_paths_agree(layout):
-    from posevote.model.weights import _instance_weights
+def test_weights_agree_with_the_reference_in_one_block_or_several(layout):
+    from posevote.model.weights import _instance_weights, instance_weights_reference
 
     rng = np.random.default_rng(3)
     m, k = 400, 12
@@ -37,8 +37,12 @@ def test_weights_dense_and_sorted_paths_agree(layout):
     view = rng.integers(0, k, m)
     az = np.linspace(0, 2 * np.pi, k, endpoint=False)
     directions = np.column_stack([np.sin(az), np.cos(az), np.zeros(k)])
-    kw = dict(position_sigma=2.0, orientation_kappa=8.0, viewpoint_kappa=4.0, max_pairs=10**7)
-    dense = _instance_weights(xy, theta, view, directions, **kw)
-    sorted_ = _instance_weights(xy, theta, view, directions, dense_cells=0, **kw)
-    assert dense == pytest.approx(sorted_, abs=1e-12)
-    assert dense.min() < 0.9
+    kw = dict(position_sigma=2.0, orientation_kappa=8.0, viewpoint_kappa=4.0)
+    reference = instance_weights_reference(xy, theta, view, directions, **kw)
+    whole = _instance_weights(xy, theta, view, directions, **kw)
+    assert whole == pytest.approx(reference, abs=1e-12)
+    assert whole.min() < 0.9
+    # Blocks of 5, 1 and every view: a dense sphere's table, a block at a time.
+    for cells in (5 * m, 1, k * m):
+        blocked = _instance_weights(xy, theta, view, directions, dense_cells=cells, **kw)
+        assert blocked == pytest.approx(reference, abs=1e-12)

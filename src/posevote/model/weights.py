@@ -29,8 +29,7 @@ from posevote.model.kernels import orientation_kernel, position_kernel, viewpoin
 
 
 def feature_weights(model: PoseModel, *, position_sigma: float, orientation_kappa: float,
-                    viewpoint_kappa: float, max_pairs: int = 50_000_000, n_threads: int = 1
-                    ) -> NDArray[np.float64]:
+                    viewpoint_kappa: float, n_threads: int = 1) -> NDArray[np.float64]:
     """Weights ``wt_i`` of Eq. 4 for every training feature.
 
     Parameters
@@ -43,10 +42,6 @@ def feature_weights(model: PoseModel, *, position_sigma: float, orientation_kapp
         Concentration of the appearance kernel in orientation.
     viewpoint_kappa : float
         Concentration of the pose kernel K1 on viewing directions.
-    max_pairs : int, optional
-        Guard on the number of nearby feature pairs listed per instance, by
-        the path for instances of over 20 million features x views (smaller
-        ones visit the pairs without listing them).
     n_threads : int, optional
         Instances weighed at once (each on its own: the same weights).
 
@@ -54,13 +49,6 @@ def feature_weights(model: PoseModel, *, position_sigma: float, orientation_kapp
     -------
     ndarray, shape (M,)
         Weights in ``[0, 1]``.
-
-    Raises
-    ------
-    ValueError
-        If an instance of over 20 million features x views has so many
-        overlapping features that more than ``max_pairs`` pairs would be
-        listed.
     """
     weights = np.zeros(model.n_features)
     directions = model.view_directions()
@@ -73,7 +61,7 @@ def feature_weights(model: PoseModel, *, position_sigma: float, orientation_kapp
         return idx, _instance_weights(model.xy[idx], model.theta[idx], local[model.view[idx]],
                                       directions[views], position_sigma=position_sigma,
                                       orientation_kappa=orientation_kappa,
-                                      viewpoint_kappa=viewpoint_kappa, max_pairs=max_pairs)
+                                      viewpoint_kappa=viewpoint_kappa)
 
     for idx, values in thread_map(weigh, np.unique(model.view_instance).tolist(), n_threads,
                                   ahead=1):
@@ -87,52 +75,60 @@ _MAX_CELLS_PER_SIDE = 1024
 def _instance_weights(xy: NDArray[np.float64], theta: NDArray[np.float64],
                       view: NDArray[np.int64], directions: NDArray[np.float64], *,
                       position_sigma: float, orientation_kappa: float, viewpoint_kappa: float,
-                      max_pairs: int, dense_cells: int = 20_000_000) -> NDArray[np.float64]:
+                      dense_cells: int = 20_000_000) -> NDArray[np.float64]:
     """Eq. 4 over the views of one instance (``view`` indexes ``directions``).
 
-    With at most ``dense_cells`` (features x views), the strongest response
-    per feature and view is gathered in a dense table (several times faster
-    on pooled car sequences); otherwise by sorting the feature pairs.
+    The strongest response per feature and view is gathered in a table of
+    features x views, a block of views at a time so that a block holds at
+    most ``dense_cells`` cells (one block up to 20 million: the whole
+    sphere of a dense training set stays within about 160 MB a block).
     """
     m, k_views = len(theta), len(directions)
     if m == 0:
         return np.zeros(0)
     radius = 3.0 * position_sigma
-    if m * k_views <= dense_cells:
-        # psi~_k(x_i) for every feature and view at once: the strongest
-        # response among the features of view k (0 where none is near).
-        # The strongest response is the exponential of the largest exponent:
-        # one exponential per table cell instead of one per pair. The pairs
-        # within reach are visited on a grid of cells, never listed.
-        psi_all = np.full((m, k_views), -np.inf)
-        xy = np.ascontiguousarray(xy, dtype=np.float64)
-        # Cells at least the reach wide, and at most MAX_CELLS_PER_SIDE of them a side
-        # (a tiny kernel over a wide model would otherwise ask for billions).
-        low = xy.min(axis=0)
-        side = max(radius, float(np.max(xy.max(axis=0) - low)) / _MAX_CELLS_PER_SIDE)
-        cells = np.floor((xy - low) / side).astype(np.int64)
-        n_cols, n_rows = (int(n) + 1 for n in cells.max(axis=0))
-        key = cells[:, 1] * n_cols + cells[:, 0]
-        order = np.argsort(key, kind="stable")
-        start = np.searchsorted(key[order], np.arange(n_rows * n_cols + 1))
-        _strongest_exponents(xy, np.ascontiguousarray(theta, dtype=np.float64),
-                             np.ascontiguousarray(view, dtype=np.int64), cells, order, start,
-                             n_rows, n_cols, float(radius), float(position_sigma),
-                             float(orientation_kappa), psi_all)
-        np.exp(psi_all, out=psi_all)
-        k1_views = viewpoint_kernel(directions[:, None, :], directions[None, :, :],
-                                    viewpoint_kappa)
-        ambiguity = np.einsum("ik,ik->i", psi_all, 1.0 - k1_views[view]) / k_views
-        return np.clip(1.0 - ambiguity, 0.0, 1.0)
-    # The pure-numpy path (the reference of the dense one in the tests):
-    # both directions of every pair, plus each feature with itself.
+    # The pairs within reach are visited on a grid of cells, never listed.
+    xy = np.ascontiguousarray(xy, dtype=np.float64)
+    # Cells at least the reach wide, and at most MAX_CELLS_PER_SIDE of them a side
+    # (a tiny kernel over a wide model would otherwise ask for billions).
+    low = xy.min(axis=0)
+    side = max(radius, float(np.max(xy.max(axis=0) - low)) / _MAX_CELLS_PER_SIDE)
+    cells = np.floor((xy - low) / side).astype(np.int64)
+    n_cols, n_rows = (int(n) + 1 for n in cells.max(axis=0))
+    key = cells[:, 1] * n_cols + cells[:, 0]
+    order = np.argsort(key, kind="stable")
+    start = np.searchsorted(key[order], np.arange(n_rows * n_cols + 1))
+    k1_views = viewpoint_kernel(directions[:, None, :], directions[None, :, :], viewpoint_kappa)
+    theta = np.ascontiguousarray(theta, dtype=np.float64)
+    view = np.ascontiguousarray(view, dtype=np.int64)
+    block = max(1, dense_cells // m)
+    ambiguity = np.zeros(m)
+    for lo in range(0, k_views, block):
+        hi = min(k_views, lo + block)
+        # psi~_k(x_i) for every feature and the block's views: the strongest
+        # response among the features of view k (0 where none is near). The
+        # strongest response is the exponential of the largest exponent: one
+        # exponential per table cell instead of one per pair.
+        psi = np.full((m, hi - lo), -np.inf)
+        _strongest_exponents(xy, theta, view, cells, order, start, n_rows, n_cols,
+                             float(radius), float(position_sigma), float(orientation_kappa),
+                             lo, hi, psi)
+        np.exp(psi, out=psi)
+        ambiguity += np.einsum("ik,ik->i", psi, 1.0 - k1_views[view, lo:hi])
+    return np.clip(1.0 - ambiguity / k_views, 0.0, 1.0)
+
+
+def instance_weights_reference(xy: NDArray[np.float64], theta: NDArray[np.float64],
+                               view: NDArray[np.int64], directions: NDArray[np.float64], *,
+                               position_sigma: float, orientation_kappa: float,
+                               viewpoint_kappa: float) -> NDArray[np.float64]:
+    """Pure-numpy :func:`_instance_weights` (for tests): every pair within reach listed,
+    both ways, plus each feature with itself."""
     # imported where used, so that a command-line start does not pay for it
     from scipy.spatial import cKDTree
 
-    pairs = cKDTree(xy).query_pairs(radius, output_type="ndarray")
-    if len(pairs) > max_pairs:
-        raise ValueError(f"{len(pairs)} feature pairs to weigh (max_pairs={max_pairs}); "
-                         "lower the feature budget (max_train_features)")
+    m, k_views = len(theta), len(directions)
+    pairs = cKDTree(xy).query_pairs(3.0 * position_sigma, output_type="ndarray")
     i = np.concatenate([pairs[:, 0], pairs[:, 1], np.arange(m)])
     j = np.concatenate([pairs[:, 1], pairs[:, 0], np.arange(m)])
     d2 = np.sum((xy[i] - xy[j]) ** 2, axis=1)
@@ -152,9 +148,10 @@ def _instance_weights(xy: NDArray[np.float64], theta: NDArray[np.float64],
 
 @numba.njit(cache=True, nogil=True)
 def _strongest_exponents(xy, theta, view, cells, order, start, n_rows, n_cols, radius, sigma,
-                         kappa, out):  # pragma: no cover - compiled
-    """``out[i, k]``: the log of the strongest kernel response at feature i of any
-    feature of view k within ``radius`` (``out`` starts at -inf).
+                         kappa, v_lo, v_hi, out):  # pragma: no cover - compiled
+    """``out[i, k - v_lo]``: the log of the strongest kernel response at feature i of any
+    feature of view k within ``radius``, for the views ``v_lo <= k < v_hi`` (``out``
+    starts at -inf).
 
     The features are sorted into square cells at least ``radius`` wide (``cells``
     holds each one's column and row on an ``n_rows`` x ``n_cols`` grid, keyed
@@ -165,7 +162,8 @@ def _strongest_exponents(xy, theta, view, cells, order, start, n_rows, n_cols, r
     feature's response to itself is 1.
     """
     for a in range(xy.shape[0]):
-        out[a, view[a]] = 0.0
+        if v_lo <= view[a] < v_hi:
+            out[a, view[a] - v_lo] = 0.0
     inv = 1.0 / (2.0 * sigma * sigma)
     r2 = radius * radius
     for pa in range(order.shape[0]):
@@ -189,9 +187,13 @@ def _strongest_exponents(xy, theta, view, cells, order, start, n_rows, n_cols, r
                 d2 = dx * dx + dy * dy
                 if d2 > r2:
                     continue
+                a_in = v_lo <= view[a] < v_hi
+                b_in = v_lo <= view[b] < v_hi
+                if not (a_in or b_in):
+                    continue
                 # Both kernels' exponents summed.
                 r = kappa * (np.cos(2.0 * (theta[a] - theta[b])) - 1.0) - d2 * inv
-                if r > out[a, view[b]]:
-                    out[a, view[b]] = r
-                if r > out[b, view[a]]:
-                    out[b, view[a]] = r
+                if b_in and r > out[a, view[b] - v_lo]:
+                    out[a, view[b] - v_lo] = r
+                if a_in and r > out[b, view[a] - v_lo]:
+                    out[b, view[a] - v_lo] = r
