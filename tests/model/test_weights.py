@@ -44,5 +44,5 @@ def test_weights_agree_with_the_reference_in_one_block_or_several(layout):
     assert whole.min() < 0.9
     # Blocks of 5, 1 and every view: a dense sphere's table, a block at a time.
     for cells in (5 * m, 1, k * m):
-        blocked = _instance_weights(xy, theta, view, directions, dense_cells=cells, **kw)
+        blocked = _instance_weights(xy, theta, view, directions, block_cells=cells, **kw)
         assert blocked == pytest.approx(reference, abs=1e-12)

@@ -70,23 +70,25 @@ def feature_weights(model: PoseModel, *, position_sigma: float, orientation_kapp
 
 
 _MAX_CELLS_PER_SIDE = 1024
+#: A feature's appearance kernel reaches this many position sigmas.
+_REACH_SIGMAS = 3.0
 
 
 def _instance_weights(xy: NDArray[np.float64], theta: NDArray[np.float64],
                       view: NDArray[np.int64], directions: NDArray[np.float64], *,
                       position_sigma: float, orientation_kappa: float, viewpoint_kappa: float,
-                      dense_cells: int = 20_000_000) -> NDArray[np.float64]:
+                      block_cells: int = 20_000_000) -> NDArray[np.float64]:
     """Eq. 4 over the views of one instance (``view`` indexes ``directions``).
 
     The strongest response per feature and view is gathered in a table of
     features x views, a block of views at a time so that a block holds at
-    most ``dense_cells`` cells (one block up to 20 million: the whole
-    sphere of a dense training set stays within about 160 MB a block).
+    most ``block_cells`` cells (20 million: a table of 160 MB, and its
+    weighting's temporaries about as much again, however many views).
     """
     m, k_views = len(theta), len(directions)
     if m == 0:
         return np.zeros(0)
-    radius = 3.0 * position_sigma
+    radius = _REACH_SIGMAS * position_sigma
     # The pairs within reach are visited on a grid of cells, never listed.
     xy = np.ascontiguousarray(xy, dtype=np.float64)
     # Cells at least the reach wide, and at most MAX_CELLS_PER_SIDE of them a side
@@ -101,7 +103,7 @@ def _instance_weights(xy: NDArray[np.float64], theta: NDArray[np.float64],
     k1_views = viewpoint_kernel(directions[:, None, :], directions[None, :, :], viewpoint_kappa)
     theta = np.ascontiguousarray(theta, dtype=np.float64)
     view = np.ascontiguousarray(view, dtype=np.int64)
-    block = max(1, dense_cells // m)
+    block = max(1, block_cells // m)
     ambiguity = np.zeros(m)
     for lo in range(0, k_views, block):
         hi = min(k_views, lo + block)
@@ -128,7 +130,7 @@ def instance_weights_reference(xy: NDArray[np.float64], theta: NDArray[np.float6
     from scipy.spatial import cKDTree
 
     m, k_views = len(theta), len(directions)
-    pairs = cKDTree(xy).query_pairs(3.0 * position_sigma, output_type="ndarray")
+    pairs = cKDTree(xy).query_pairs(_REACH_SIGMAS * position_sigma, output_type="ndarray")
     i = np.concatenate([pairs[:, 0], pairs[:, 1], np.arange(m)])
     j = np.concatenate([pairs[:, 1], pairs[:, 0], np.arange(m)])
     d2 = np.sum((xy[i] - xy[j]) ** 2, axis=1)
