@@ -89,6 +89,30 @@ def test_profile_refine_lands_between_training_views(scene):
     assert abs(np.log(held.scale / anchor.scale)) <= 0.02 + 1e-9
 
 
+def test_profile_refine_weighs_the_viewpoints_by_their_correlation(scene):
+    from posevote.refinement.fitting import neighbour_viewpoints
+
+    est, probes, fine, _ = scene
+    mode = find_modes(probes)[0]
+    kw = dict(viewpoint_kappa=est.viewpoint_kappa_, k1_cutoff=K1_CUTOFF)
+    plain = profile_refine(probes, mode, est.model_, fine, **kw)
+    seen = []
+
+    def flat(hyps):
+        seen.append(len(hyps))
+        return np.ones(len(hyps))
+
+    assert profile_refine(probes, mode, est.model_, fine, correlate=flat, **kw) == plain
+    assert seen == [len(neighbour_viewpoints(probes, mode, radius_steps=2.5))]
+
+    def ahead(hyps):
+        # Only the views past the plain fit look like the object.
+        return np.array([1.0 if np.sin(h.azimuth - plain.azimuth) > 0 else 0.0 for h in hyps])
+
+    moved = profile_refine(probes, mode, est.model_, fine, correlate=ahead, **kw)
+    assert np.sin(moved.azimuth - plain.azimuth) > np.sin(np.radians(1.0))
+
+
 def test_start_near_keeps_to_the_mode_object():
     from posevote.inference import ProbeSet
     from posevote.refinement.local import start_near

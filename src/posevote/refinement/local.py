@@ -394,7 +394,9 @@ def profile_refine(probes: ProbeSet, viewpoint: int, model: PoseModel, maps: Tes
                    viewpoint_kappa: float, use_weights: bool = True, k1_cutoff: float = 0.1,
                    radius_steps: float = 2.5, scale_margin: float | None = None,
                    view_shape: float = VIEW_SHAPE, anchor: Hypothesis | None = None,
-                   frame_scale: float = 1.0) -> Hypothesis:
+                   frame_scale: float = 1.0,
+                   correlate: Callable[[list[Hypothesis]], NDArray[np.float64]] | None = None
+                   ) -> Hypothesis:
     """Fit the viewpoint on the profile likelihood, then polish (beyond the paper).
 
     For every probed viewpoint near the mode, the exact p(w) is maximised over
@@ -432,6 +434,15 @@ def profile_refine(probes: ProbeSet, viewpoint: int, model: PoseModel, maps: Tes
     frame_scale : float, optional
         ``maps`` tabulate the test image divided by this factor (the kernel
         in object units at that scale); poses are converted in and out.
+    correlate : callable, optional
+        Each polished pose's correlation with the object's grey levels
+        (:func:`posevote.inference.templates.pose_correlations`); with it
+        every viewpoint's maximised score is multiplied by it (floored at
+        :data:`~posevote.inference.templates.CORRELATION_FLOOR`) before the
+        fit, as the search's probes and :func:`rescale_anchor`'s scales are:
+        in clutter the edges alone let a neighbouring view's polish score on
+        the background.
+
     Returns
     -------
     Hypothesis
@@ -452,6 +463,9 @@ def profile_refine(probes: ProbeSet, viewpoint: int, model: PoseModel, maps: Tes
                                     viewpoint_kappa=viewpoint_kappa, use_weights=use_weights,
                                     k1_cutoff=k1_cutoff, scale_bounds=bounds))
     score = np.array([h.score for h in polished])
+    if correlate is not None:
+        found = correlate([in_frame(h, 1.0 / frame_scale) for h in polished])
+        score = score * np.maximum(found, CORRELATION_FLOOR)
     profile = ProbeSet(azimuth=probes.azimuth[views], elevation=probes.elevation[views],
                        inplane=np.zeros(1), scale=np.ones(1), score=score[:, None, None],
                        translation=np.zeros((len(views), 1, 1, 2)), box=probes.box[views])
@@ -514,7 +528,8 @@ def local_refine(probes: ProbeSet, viewpoint: int, hypothesis: Hypothesis, model
     object_units : bool, optional
         With ``fitting``, choose the scale again in object units.
     correlate : callable, optional
-        Weighs that choice by the grey levels (:func:`rescale_anchor`).
+        Weighs by the grey levels that choice (:func:`rescale_anchor`) and
+        the viewpoints' profile (:func:`profile_refine`).
 
     Returns
     -------
@@ -547,9 +562,9 @@ def local_refine(probes: ProbeSet, viewpoint: int, hypothesis: Hypothesis, model
             scaled = image_maps(*scaled_features(features, shape, factor), setup, scale=factor)
             return profile_refine(probes, viewpoint, model, scaled, scale_margin=margin,
                                   radius_steps=FIT_RADIUS_STEPS, anchor=anchor,
-                                  frame_scale=factor, **kw)
+                                  frame_scale=factor, correlate=correlate, **kw)
     return profile_refine(probes, viewpoint, model, pixel_maps(), scale_margin=margin,
-                          radius_steps=FIT_RADIUS_STEPS, **kw)
+                          radius_steps=FIT_RADIUS_STEPS, correlate=correlate, **kw)
 
 
 def rescale_mode(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps,
