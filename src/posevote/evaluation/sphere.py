@@ -3,7 +3,7 @@
 A mesh of ``pybullet_data`` (r2d2 by default) is rendered with pybullet's CPU
 renderer, framed so that its bounding sphere fits the view. Training: azimuths
 every :data:`AZIMUTH_STEP_DEG` at the elevations :data:`ELEVATIONS_DEG`
-(252 views), on black, with their masks; the object's height in metres is
+(468 views), on black, with their masks; the object's height in metres is
 learnt from the training distances
 (:func:`posevote.camera.object_height_from_distances`). Test: views at
 random azimuths and elevations between the extreme training elevations, so
@@ -48,9 +48,9 @@ from posevote.evaluation.rendering import MESHES, RenderedView, render_focal, re
 from posevote.evaluation.synthetic import PastedView, paste_on_clutter
 from posevote.geometry import box_centre, box_iou, rotation_angle, rotation_from_pose
 
-ELEVATIONS_DEG = (-30.0, -15.0, 0.0, 15.0, 30.0, 45.0, 60.0)
-#: Training azimuth step, degrees: 10 (against 15 and 20) and 15° elevations (against 7.5°)
-#: chosen on the development seeds 1 and 2 (docs/DEFAULTS.md).
+#: Training elevations, degrees, every 7.5° (against 15°) and azimuths every 10° (against
+#: 15° and 20°): chosen on the development seeds 1-4 (docs/DEFAULTS.md).
+ELEVATIONS_DEG = tuple(float(e) for e in np.arange(-30.0, 60.1, 7.5))
 AZIMUTH_STEP_DEG = 10
 #: Side of the rendered views and size of the cluttered canvas, pixels.
 SIZE = 128
