@@ -50,7 +50,8 @@ from posevote.geometry import box_centre, box_iou, rotation_angle, rotation_from
 
 #: Training elevations, degrees, every 7.5° (against 15°) and azimuths every 10° (against
 #: 15° and 20°): chosen on the development seeds 1-4 (docs/DEFAULTS.md).
-ELEVATIONS_DEG = tuple(float(e) for e in np.arange(-30.0, 60.1, 7.5))
+ELEVATIONS_DEG = (-30.0, -22.5, -15.0, -7.5, 0.0, 7.5, 15.0, 22.5, 30.0, 37.5, 45.0, 52.5,
+                  60.0)
 AZIMUTH_STEP_DEG = 10
 #: Side of the rendered views and size of the cluttered canvas, pixels.
 SIZE = 128
