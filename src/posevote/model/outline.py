@@ -26,8 +26,12 @@ from posevote.model.density import PoseModel, view_average
 OUTLINE_ANGLES = 36
 
 
+def _angles() -> NDArray[np.float64]:
+    return np.arange(OUTLINE_ANGLES, dtype=np.float64) * (2.0 * np.pi / OUTLINE_ANGLES)
+
+
 def _directions() -> NDArray[np.float64]:
-    angles = np.arange(OUTLINE_ANGLES) * (2.0 * np.pi / OUTLINE_ANGLES)
+    angles = _angles()
     return np.column_stack([np.cos(angles), np.sin(angles)])
 
 
@@ -76,8 +80,7 @@ def outline_box(outline: NDArray[np.float64], position: tuple[float, float], sca
     """
     axes = rotate_points(np.array([[1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]]), -alpha)
     angles = np.arctan2(axes[:, 1], axes[:, 0])
-    grid = np.arange(OUTLINE_ANGLES) * (2.0 * np.pi / OUTLINE_ANGLES)
-    right, left, down, up = scale * np.interp(angles, grid, outline, period=2.0 * np.pi)
+    right, left, down, up = scale * np.interp(angles, _angles(), outline, period=2.0 * np.pi)
     x, y = position
     return float(x - left), float(y - up), float(left + right), float(up + down)
 
