@@ -222,3 +222,67 @@ def test_a_polished_search_on_one_set_of_maps_polishes_near_its_best_viewpoints(
     np.testing.assert_array_equal(probes.translation[~near], rough.translation[~near])
     # The best probe is the polished search's.
     assert probes.score.max() == fine.score.max()
+
+
+def test_coarse_viewpoints_cover_the_set_at_their_separation():
+    from posevote.geometry import viewing_direction
+    from posevote.inference.search import coarse_viewpoints
+
+    el, az = np.meshgrid(np.radians(np.arange(-30.0, 61.0, 7.5)), np.radians(np.arange(0, 360, 10)))
+    az, el = az.ravel(), el.ravel()
+    sep = np.radians(15.0)
+    kept = coarse_viewpoints(az, el, sep)
+    d = viewing_direction(az, el)
+    between = np.degrees(np.arccos(np.clip(d[kept] @ d[kept].T, -1, 1)))
+    np.fill_diagonal(between, 180.0)
+    assert between.min() >= 15.0 - 1e-6 and 60 < len(kept) < len(az) / 3
+    to_kept = np.degrees(np.arccos(np.clip((d @ d[kept].T).max(axis=1), -1, 1)))
+    assert to_kept.max() <= 15.0 + 1e-6
+    assert kept.tolist() == coarse_viewpoints(az, el, sep).tolist()
+
+
+def test_a_ranking_search_on_the_sphere_goes_coarse_to_fine(synthetic_training, draw):
+    # Views at three elevations: the every-other scales probed first at the
+    # coarse viewpoints, then at the others near the best third of those.
+    from posevote import PoseEstimator
+    from posevote.features.edges import extract_edges
+    from posevote.inference import probe_poses
+    from posevote.inference.search import (
+        COARSE_STEPS,
+        MAX_VOTERS,
+        RANKING_VIEWPOINTS,
+        VOTE_CANDIDATES,
+        coarse_viewpoints,
+        probe,
+        search_maps,
+    )
+    from posevote.model.kernels import K1_CUTOFF
+
+    images, az, boxes = synthetic_training
+    rows = np.radians([-15.0, 0.0, 15.0])
+    poses = np.array([(a, e) for e in rows for a in az])
+    est = PoseEstimator().fit(list(images) * 3, poses, boxes=np.tile(boxes, (3, 1)))
+    options = SearchOptions(scale_range=(0.7, 1.45), scale_steps=6, object_kernel=True)
+    setup = replace(est.setup(), options=options)
+    image = draw(np.radians(60))
+    maps = search_maps(extract_edges(image, est.edges, training=False), image.shape, est.model_,
+                       setup)
+    ranked = probe(est.model_, maps, setup, polish=False)
+    everywhere = probe_poses(est.model_, maps[::2], azimuths=ranked.azimuth,
+                             elevations=ranked.elevation, inplanes=ranked.inplane,
+                             scales=options.grid()[1][::2], viewpoint_kappa=setup.viewpoint_kappa,
+                             k1_cutoff=K1_CUTOFF, max_voters=MAX_VOTERS,
+                             n_candidates=VOTE_CANDIDATES, polish=False)
+    d = ranked.directions
+    reach = COARSE_STEPS * ranked.spacing
+    coarse = coarse_viewpoints(ranked.azimuth, ranked.elevation, reach)
+    top = coarse[np.argsort(-everywhere.score[coarse].max(axis=(1, 2)), kind="stable")][
+        :max(3, round(len(coarse) * RANKING_VIEWPOINTS))]
+    near = (d @ d[top].T >= np.cos(reach) - 1e-9).any(axis=1)
+    near[coarse] = True
+    assert 3 < near.sum() < len(near)
+    np.testing.assert_array_equal(ranked.probed[:, 0, 0], near)
+    np.testing.assert_array_equal(ranked.score[near][:, :, ::2], everywhere.score[near])
+    assert not ranked.score[~near].any()
+    # Unprobed viewpoints keep their boxes for the fit.
+    np.testing.assert_array_equal(ranked.box, everywhere.box)

@@ -60,6 +60,11 @@ NEAR_SCALE_STEPS = 1.5
 #: those that score best on the first: chosen on the five epfl-cv folds (the
 #: same share under 45 degrees on each fold as all scales everywhere).
 RANKING_VIEWPOINTS = 1.0 / 3.0
+#: On the viewing sphere (viewpoints at several elevations) the ranking search
+#: probes the every-other scales first at a subset of viewpoints this many grid
+#: spacings apart, then at every viewpoint within that reach of the best
+#: RANKING_VIEWPOINTS of them (docs/DEFAULTS.md, "Coarse viewpoints").
+COARSE_STEPS = 2.0
 #: A polished search over one set of maps (the default preset's) probes every
 #: viewpoint unpolished, then polishes the viewpoints the continuous fit of the
 #: POLISHED_MODES best will read: those within POLISH_REACH_STEPS probe
@@ -711,8 +716,8 @@ def _ranking_probes(model: PoseModel, maps: list[TestMaps], az: NDArray[np.float
     scale to the next (the search kernel is widened for half a step).
     """
     even, odd = np.arange(0, len(scales), 2), np.arange(1, len(scales), 2)
-    first = probe_poses(model, [maps[k] for k in even], azimuths=az, elevations=el,
-                        scales=scales[even], progress=progress, **kw)
+    first = _coarse_to_fine(model, [maps[k] for k in even], az, el, scales[even],
+                            progress=progress, **kw)
     n_best = max(3, int(round(len(az) * RANKING_VIEWPOINTS)))
     best = np.sort(np.argsort(-first.score.max(axis=(1, 2)), kind="stable")[:n_best])
     between = probe_poses(model, [maps[k] for k in odd], azimuths=az[best],
@@ -724,8 +729,72 @@ def _ranking_probes(model: PoseModel, maps: list[TestMaps], az: NDArray[np.float
     rows = np.ix_(best, np.arange(n_a), odd)
     score[rows], translation[rows] = between.score, between.translation
     probed = np.zeros(score.shape, dtype=bool)
-    probed[:, :, even] = True
+    probed[:, :, even] = first.probed if first.probed is not None else True
     probed[rows] = True
     return ProbeSet(azimuth=first.azimuth, elevation=first.elevation, inplane=first.inplane,
                     scale=np.asarray(scales, dtype=float), score=score, translation=translation,
                     box=first.box, probed=probed)
+
+
+def coarse_viewpoints(az: NDArray[np.float64], el: NDArray[np.float64], separation: float
+                      ) -> NDArray[np.intp]:
+    """A subset of the viewpoints at least ``separation`` (radians) apart, in their order.
+
+    Every other viewpoint lies within ``separation`` of one of the subset
+    (each is left out only for being that near one already taken).
+    """
+    dirs = viewing_direction(az, el)
+    # A hair of slack so that a regular lattice's exact multiples are taken.
+    limit = np.cos(separation) + 1e-9
+    kept: list[int] = []
+    for v in range(len(dirs)):
+        if not kept or float((dirs[kept] @ dirs[v]).max()) <= limit:
+            kept.append(v)
+    return np.asarray(kept, dtype=np.intp)
+
+
+def _coarse_to_fine(model: PoseModel, maps: list[TestMaps], az: NDArray[np.float64],
+                    el: NDArray[np.float64], scales: NDArray[np.float64], *,
+                    progress: Callable[[int], None] | None, **kw: Any) -> ProbeSet:
+    """Probe ``scales`` at every viewpoint of a turntable; on the sphere, coarse to fine.
+
+    On the sphere the viewpoints :data:`COARSE_STEPS` spacings apart are
+    probed first, then the others within that reach of the best
+    :data:`RANKING_VIEWPOINTS` of them; the rest score 0, unprobed.
+    """
+    if np.ptp(el) < 1e-9 or len(az) < 6:
+        return probe_poses(model, maps, azimuths=az, elevations=el, scales=scales,
+                           progress=progress, **kw)
+    dirs = viewing_direction(az, el)
+    cosines = np.clip(dirs @ dirs.T, -1.0, 1.0)
+    np.fill_diagonal(cosines, -1.0)
+    reach = COARSE_STEPS * float(np.median(np.arccos(cosines.max(axis=1))))
+    coarse = coarse_viewpoints(az, el, reach)
+    rough = probe_poses(model, maps, azimuths=az[coarse], elevations=el[coarse], scales=scales,
+                        progress=progress, **kw)
+    n_top = max(3, int(round(len(coarse) * RANKING_VIEWPOINTS)))
+    top = coarse[np.argsort(-rough.score.max(axis=(1, 2)), kind="stable")[:n_top]]
+    near = (dirs @ dirs[top].T >= np.cos(reach) - 1e-9).any(axis=1)
+    near[coarse] = False
+    fine = np.flatnonzero(near)
+    score = np.zeros((len(az),) + rough.score.shape[1:])
+    translation = np.zeros((len(az),) + rough.translation.shape[1:])
+    box = np.zeros((len(az), 2))
+    score[coarse], translation[coarse], box[coarse] = rough.score, rough.translation, rough.box
+    if len(fine):
+        rest = probe_poses(model, maps, azimuths=az[fine], elevations=el[fine], scales=scales,
+                           progress=progress, **kw)
+        score[fine], translation[fine], box[fine] = rest.score, rest.translation, rest.box
+    probed = np.zeros(score.shape, dtype=bool)
+    probed[coarse] = True
+    probed[fine] = True
+    for v in np.flatnonzero(~probed[:, 0, 0]):
+        # The fit and the refinements read boxes everywhere (cached features).
+        box[v] = _probe_features(model, float(az[v]), float(el[v]),
+                                 viewpoint_kappa=kw["viewpoint_kappa"],
+                                 use_weights=kw["use_weights"], k1_cutoff=kw["k1_cutoff"],
+                                 max_features=kw["max_features"],
+                                 max_voters=kw["max_voters"])[3]
+    return ProbeSet(azimuth=np.asarray(az, dtype=float), elevation=np.asarray(el, dtype=float),
+                    inplane=rough.inplane, scale=rough.scale, score=score,
+                    translation=translation, box=box, probed=probed)
