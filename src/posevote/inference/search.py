@@ -63,7 +63,8 @@ RANKING_VIEWPOINTS = 1.0 / 3.0
 #: On the viewing sphere (viewpoints at several elevations) the ranking search
 #: probes the every-other scales first at a subset of viewpoints this many grid
 #: spacings apart, then at every viewpoint within that reach of the best
-#: RANKING_VIEWPOINTS of them (docs/DEFAULTS.md, "Coarse viewpoints").
+#: RANKING_VIEWPOINTS of them: by hand, measured on the rendered sphere's
+#: development seeds (docs/DEFAULTS.md, named constants).
 COARSE_STEPS = 2.0
 #: A polished search over one set of maps (the default preset's) probes every
 #: viewpoint unpolished, then polishes the viewpoints the continuous fit of the
@@ -626,9 +627,11 @@ def probe(model: PoseModel, maps: TestMaps | Sequence[TestMaps | None], setup: S
         appearance verification, which moves the boxes itself). With
         per-scale maps, polished or not, the scales between every other one
         are probed only at the best viewpoints (:data:`RANKING_VIEWPOINTS`),
-        the others scoring 0. With one set of maps, a full search (no
-        ``near``) of six viewpoints or more polishes only the viewpoints
-        near its :data:`POLISHED_MODES` best (:func:`_polished_near_modes`).
+        the others scoring 0; on the viewing sphere the first scales, too,
+        go coarse to fine over the viewpoints (:data:`COARSE_STEPS`). With
+        one set of maps, a full search (no ``near``) of six viewpoints or
+        more polishes only the viewpoints near its :data:`POLISHED_MODES`
+        best (:func:`_polished_near_modes`).
 
     Returns
     -------
