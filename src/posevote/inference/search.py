@@ -336,12 +336,7 @@ class ProbeSet:
     def spacing(self) -> float:
         """Median angle between a probed viewpoint and its nearest neighbour, radians (pi
         for fewer than two); cached, as every fit of the probes' modes reads it."""
-        d = self.directions
-        if len(d) < 2:
-            return float(np.pi)
-        cosines = np.clip(d @ d.T, -1.0, 1.0)
-        np.fill_diagonal(cosines, -1.0)
-        return float(np.median(np.arccos(cosines.max(axis=1))))
+        return median_spacing(self.directions)
 
     def boxes(self) -> NDArray[np.float64]:
         """Box ``(x, y, w, h)`` of every probe, pixels, shape (V, A, S, 4)."""
@@ -353,6 +348,16 @@ class ProbeSet:
     def turntable(self) -> bool:
         """True when every probe has the same elevation (only azimuth varies)."""
         return bool(np.ptp(self.elevation) < 1e-9) if len(self.elevation) else True
+
+
+def median_spacing(directions: NDArray[np.float64]) -> float:
+    """Median angle between a viewing direction and its nearest neighbour, radians (pi for
+    fewer than two)."""
+    if len(directions) < 2:
+        return float(np.pi)
+    cosines = np.clip(directions @ directions.T, -1.0, 1.0)
+    np.fill_diagonal(cosines, -1.0)
+    return float(np.median(np.arccos(cosines.max(axis=1))))
 
 
 def probe_spacing(probes: ProbeSet) -> float:
@@ -749,9 +754,11 @@ def coarse_viewpoints(az: NDArray[np.float64], el: NDArray[np.float64], separati
     dirs = viewing_direction(az, el)
     # A hair of slack so that a regular lattice's exact multiples are taken.
     limit = np.cos(separation) + 1e-9
+    chosen = np.empty_like(dirs)
     kept: list[int] = []
     for v in range(len(dirs)):
-        if not kept or float((dirs[kept] @ dirs[v]).max()) <= limit:
+        if not kept or float((chosen[:len(kept)] @ dirs[v]).max()) <= limit:
+            chosen[len(kept)] = dirs[v]
             kept.append(v)
     return np.asarray(kept, dtype=np.intp)
 
@@ -769,9 +776,7 @@ def _coarse_to_fine(model: PoseModel, maps: list[TestMaps], az: NDArray[np.float
         return probe_poses(model, maps, azimuths=az, elevations=el, scales=scales,
                            progress=progress, **kw)
     dirs = viewing_direction(az, el)
-    cosines = np.clip(dirs @ dirs.T, -1.0, 1.0)
-    np.fill_diagonal(cosines, -1.0)
-    reach = COARSE_STEPS * float(np.median(np.arccos(cosines.max(axis=1))))
+    reach = COARSE_STEPS * median_spacing(dirs)
     coarse = coarse_viewpoints(az, el, reach)
     rough = probe_poses(model, maps, azimuths=az[coarse], elevations=el[coarse], scales=scales,
                         progress=progress, **kw)
