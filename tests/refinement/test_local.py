@@ -100,10 +100,13 @@ def test_profile_refine_weighs_the_viewpoints_by_their_correlation(scene):
 
     def flat(hyps):
         seen.append(len(hyps))
-        return np.ones(len(hyps))
+        return np.full(len(hyps), 0.5)
 
-    assert profile_refine(probes, mode, est.model_, fine, correlate=flat, **kw) == plain
-    assert seen == [len(neighbour_viewpoints(probes, mode, radius_steps=2.5))]
+    # A correlation alike everywhere moves nothing; the pose returned is scored
+    # as the profile's were.
+    weighed = profile_refine(probes, mode, est.model_, fine, correlate=flat, **kw)
+    assert weighed == replace(plain, score=plain.score * 0.5) and plain.refined
+    assert seen == [len(neighbour_viewpoints(probes, mode, radius_steps=2.5)), 1]
 
     def ahead(hyps):
         # Only the views past the plain fit look like the object.

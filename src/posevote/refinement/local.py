@@ -441,7 +441,7 @@ def profile_refine(probes: ProbeSet, viewpoint: int, model: PoseModel, maps: Tes
         :data:`~posevote.inference.templates.CORRELATION_FLOOR`) before the
         fit, as the search's probes and :func:`rescale_anchor`'s scales are:
         in clutter the edges alone let a neighbouring view's polish score on
-        the background.
+        the background. The pose returned is scored the same way.
 
     Returns
     -------
@@ -473,11 +473,16 @@ def profile_refine(probes: ProbeSet, viewpoint: int, model: PoseModel, maps: Tes
     fitted = refine_mode(profile, best, radius_steps=radius_steps, view_shape=view_shape)
     seed = polished[best]
     if not fitted.refined:
-        return in_frame(seed, 1.0 / frame_scale)
+        return replace(in_frame(seed, 1.0 / frame_scale), score=float(score[best]))
     moved = replace(seed, azimuth=fitted.azimuth, elevation=fitted.elevation, refined=True)
-    final = polish_pose(moved, model, maps, viewpoint_kappa=viewpoint_kappa,
-                        use_weights=use_weights, k1_cutoff=k1_cutoff, scale_bounds=bounds)
-    return replace(in_frame(final, 1.0 / frame_scale), refined=True)
+    final = in_frame(polish_pose(moved, model, maps, viewpoint_kappa=viewpoint_kappa,
+                                 use_weights=use_weights, k1_cutoff=k1_cutoff,
+                                 scale_bounds=bounds), 1.0 / frame_scale)
+    if correlate is not None:
+        # Scored as the profile's poses were, so that modes and images compare.
+        final = replace(final, score=final.score * max(float(correlate([final])[0]),
+                                                       CORRELATION_FLOOR))
+    return replace(final, refined=True)
 
 
 #: The local refinement keeps the scale within this many steps of the search's
