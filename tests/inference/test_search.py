@@ -147,27 +147,35 @@ def test_a_search_near_a_pose_probes_the_scales_near_its_own(fitted_estimator, d
         probe(est.model_, maps[:2], setup)
 
 
-@pytest.mark.parametrize("polish", [False, True])
-def test_a_ranking_search_probes_the_scales_between_at_the_best_viewpoints(fitted_estimator,
-                                                                             draw, polish):
+def _ranking_search(est, draw, polish):
+    """A ranking search (per-scale maps, six scales) of a view drawn at 60 degrees, its
+    scales, and what probes every ``step``-th scale at every viewpoint."""
     from posevote.features.edges import extract_edges
     from posevote.inference import probe_poses
     from posevote.inference.search import MAX_VOTERS, VOTE_CANDIDATES, probe, search_maps
     from posevote.model.kernels import K1_CUTOFF
 
-    est = fitted_estimator
     options = SearchOptions(scale_range=(0.7, 1.45), scale_steps=6, object_kernel=True)
     setup = replace(est.setup(), options=options)
     image = draw(np.radians(60))
     maps = search_maps(extract_edges(image, est.edges, training=False), image.shape, est.model_,
                        setup)
     ranked = probe(est.model_, maps, setup, polish=polish)
-    scales = options.grid()[1]
-    everywhere = probe_poses(est.model_, maps, azimuths=ranked.azimuth,
-                             elevations=ranked.elevation, inplanes=ranked.inplane,
-                             scales=scales, viewpoint_kappa=setup.viewpoint_kappa,
-                             k1_cutoff=K1_CUTOFF, max_voters=MAX_VOTERS,
-                             n_candidates=VOTE_CANDIDATES, polish=polish)
+
+    def everywhere(step):
+        return probe_poses(est.model_, maps[::step], azimuths=ranked.azimuth,
+                           elevations=ranked.elevation, inplanes=ranked.inplane,
+                           scales=options.grid()[1][::step],
+                           viewpoint_kappa=setup.viewpoint_kappa, k1_cutoff=K1_CUTOFF,
+                           max_voters=MAX_VOTERS, n_candidates=VOTE_CANDIDATES, polish=polish)
+    return ranked, options.grid()[1], everywhere
+
+
+@pytest.mark.parametrize("polish", [False, True])
+def test_a_ranking_search_probes_the_scales_between_at_the_best_viewpoints(fitted_estimator,
+                                                                             draw, polish):
+    ranked, scales, probe_all = _ranking_search(fitted_estimator, draw, polish)
+    everywhere = probe_all(1)
     np.testing.assert_array_equal(ranked.scale, scales)
     # Every other scale at every viewpoint, as a search of all of them finds it.
     np.testing.assert_array_equal(ranked.score[:, :, ::2], everywhere.score[:, :, ::2])
@@ -245,34 +253,14 @@ def test_a_ranking_search_on_the_sphere_goes_coarse_to_fine(synthetic_training, 
     # Views at three elevations: the every-other scales probed first at the
     # coarse viewpoints, then at the others near the best third of those.
     from posevote import PoseEstimator
-    from posevote.features.edges import extract_edges
-    from posevote.inference import probe_poses
-    from posevote.inference.search import (
-        COARSE_STEPS,
-        MAX_VOTERS,
-        RANKING_VIEWPOINTS,
-        VOTE_CANDIDATES,
-        coarse_viewpoints,
-        probe,
-        search_maps,
-    )
-    from posevote.model.kernels import K1_CUTOFF
+    from posevote.inference.search import COARSE_STEPS, RANKING_VIEWPOINTS, coarse_viewpoints
 
     images, az, boxes = synthetic_training
     rows = np.radians([-15.0, 0.0, 15.0])
     poses = np.array([(a, e) for e in rows for a in az])
     est = PoseEstimator().fit(list(images) * 3, poses, boxes=np.tile(boxes, (3, 1)))
-    options = SearchOptions(scale_range=(0.7, 1.45), scale_steps=6, object_kernel=True)
-    setup = replace(est.setup(), options=options)
-    image = draw(np.radians(60))
-    maps = search_maps(extract_edges(image, est.edges, training=False), image.shape, est.model_,
-                       setup)
-    ranked = probe(est.model_, maps, setup, polish=False)
-    everywhere = probe_poses(est.model_, maps[::2], azimuths=ranked.azimuth,
-                             elevations=ranked.elevation, inplanes=ranked.inplane,
-                             scales=options.grid()[1][::2], viewpoint_kappa=setup.viewpoint_kappa,
-                             k1_cutoff=K1_CUTOFF, max_voters=MAX_VOTERS,
-                             n_candidates=VOTE_CANDIDATES, polish=False)
+    ranked, _, probe_all = _ranking_search(est, draw, polish=False)
+    everywhere = probe_all(2)
     d = ranked.directions
     reach = COARSE_STEPS * ranked.spacing
     coarse = coarse_viewpoints(ranked.azimuth, ranked.elevation, reach)
