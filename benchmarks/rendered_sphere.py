@@ -4,14 +4,16 @@ The protocol itself is :mod:`posevote.evaluation.sphere`; this script runs it
 with the settings the command line does not offer: another mesh, other
 training elevations (a turntable of the same object, to tell the sphere from
 the clutter), the views tested as rendered on black (``--clean``, the
-``default`` preset), or estimator overrides. The results folder gets the
+``default`` preset), the test depths told to the estimator
+(``--known-depths``, as ``posevote estimate --depth-range`` does), or
+estimator overrides. The results folder gets the
 protocol's files; ``--markdown`` also writes its report under the command
 line that made it.
 
 Usage::
 
     python benchmarks/rendered_sphere.py [--mesh r2d2.urdf] [--images 40] [--clean]
-        [--elevations -30,-15,...] [--jobs 2] [--param NAME=VALUE ...] [--out DIR]
+        [--elevations -30,-15,...] [--known-depths] [--jobs 2] [--param NAME=VALUE ...] [--out DIR]
         [--markdown FILE]
 """
 
@@ -47,13 +49,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--clean", action="store_true",
                     help="test views as rendered, on black (the default preset): the sphere "
                          "model without clutter")
+    ap.add_argument("--known-depths", action="store_true",
+                    help="tell the estimator the test depths (the scales searched from them)")
     ap.add_argument("--param", action="append", default=[], help="NAME=VALUE estimator setting")
     ap.add_argument("--out", help="results folder (default: a temporary one)")
     ap.add_argument("--markdown", help="also write the report here")
     args = ap.parse_args(argv)
     setup = SphereSetup(mesh=args.mesh, n_images=args.images, seed=args.seed,
                         elevations_deg=tuple(float(e) for e in args.elevations.split(",")),
-                        clean=args.clean, params=parse_settings(args.param))
+                        clean=args.clean, params=parse_settings(args.param),
+                        known_depths=args.known_depths)
     with tempfile.TemporaryDirectory() as tmp:
         summary = run_sphere(setup, args.out or tmp, jobs=args.jobs,
                              log=lambda m: print(m, file=sys.stderr))

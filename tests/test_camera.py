@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import cv2
 import numpy as np
@@ -10,7 +11,13 @@ import pytest
 from click.testing import CliRunner
 
 from posevote import PoseEstimator
-from posevote.camera import Camera, object_height_from_distances, place, read_camera
+from posevote.camera import (
+    Camera,
+    object_height_from_distances,
+    place,
+    read_camera,
+    scale_range_for_depths,
+)
 from posevote.cli import cli
 from posevote.geometry import transform_from_pose
 from posevote.results import Hypothesis
@@ -77,6 +84,26 @@ def test_place_agrees_with_the_full_transform():
     assert "R_cam_obj" not in hyp.to_dict()
 
 
+def test_scale_range_for_depths_inverts_place():
+    cam = Camera.from_dict(CAM)
+    low, high = scale_range_for_depths((0.5, 2.0), cam, object_height_m=0.25,
+                                       reference_size_px=100.0)
+    hyp = Hypothesis(azimuth=0.0, elevation=0.0, inplane=0.0, scale=1.0, position=(64.0, 60.0),
+                     box=(44.0, 40.0, 40.0, 40.0), score=0.9, refined=True)
+    # The largest scale is the nearest depth, the smallest the farthest.
+    for scale, depth in ((high, 0.5), (low, 2.0)):
+        placed = place(replace(hyp, scale=scale), cam, reference_size_px=100.0,
+                       object_height_m=0.25)
+        assert placed.t_cam_obj[2] == pytest.approx(depth)
+    for bad, match in (((2.0, 0.5), "nearest < farthest"), ((0.0, 1.0), "nearest < farthest"),
+                       ((float("nan"), 1.0), "nearest < farthest"), ((1.0,), "two numbers"),
+                       ("near", "two numbers")):
+        with pytest.raises(ValueError, match=match):
+            scale_range_for_depths(bad, cam, object_height_m=0.25, reference_size_px=100.0)
+    with pytest.raises(ValueError, match="needs the object's height"):
+        scale_range_for_depths((0.5, 2.0), cam, object_height_m=None, reference_size_px=100.0)
+
+
 def test_estimate_with_a_camera(synthetic_training, draw, tmp_path):
     images, az, boxes = synthetic_training
     est = PoseEstimator().fit(images, az, boxes=boxes, object_height_m=0.3)
@@ -128,6 +155,31 @@ def test_cli_train_and_estimate_in_metres(metric_folder, synthetic_training, dra
     r = runner.invoke(cli, ["estimate", str(model), str(test), "--camera",
                             str(metric_folder / "cam.json")])
     assert "R_cam_obj [" in r.output and "t_cam_obj [" in r.output
+
+
+def test_cli_depth_range_sets_the_scales_searched(metric_folder, draw, monkeypatch):
+    runner = CliRunner()
+    model, cam = metric_folder / "m.npz", str(metric_folder / "cam.json")
+    assert runner.invoke(cli, ["train", str(metric_folder), "--camera", cam, "-o",
+                               str(model)]).exit_code == 0
+    test = metric_folder / "test.png"
+    cv2.imwrite(str(test), (draw(np.radians(100)) * 255).astype(np.uint8))
+    seen = []
+    estimate = PoseEstimator.estimate
+    monkeypatch.setattr(PoseEstimator, "estimate",
+                        lambda self, *a, **k: seen.append(self.search) or estimate(self, *a, **k))
+    r = runner.invoke(cli, ["estimate", str(model), str(test), "--json", "--camera", cam,
+                            "--depth-range", "1.2", "1.8"])
+    assert r.exit_code == 0, r.output
+    est = PoseEstimator.load(model)
+    unit = CAM["fy"] * est.object_height_m_ / est.model_.reference_size
+    np.testing.assert_allclose(seen[-1].scale_range, (unit / 1.8, unit / 1.2))
+    assert json.loads(r.output)["best"]["t_cam_obj_m"][2] == pytest.approx(1.5, rel=0.2)
+    r = runner.invoke(cli, ["estimate", str(model), str(test), "--depth-range", "1", "2"])
+    assert r.exit_code == 2 and "needs --camera" in r.output
+    r = runner.invoke(cli, ["estimate", str(model), str(test), "--camera", cam,
+                            "--depth-range", "2", "1"])
+    assert r.exit_code == 2 and "nearest < farthest" in r.output
 
 
 def test_cli_metric_inputs_refused(metric_folder):

@@ -177,6 +177,51 @@ def check_object_height(value: Any) -> float | None:
     return float(value)
 
 
+def scale_range_for_depths(depths_m: ArrayLike, camera: Camera, *, object_height_m: float | None,
+                           reference_size_px: float) -> tuple[float, float]:
+    """The search's scale range (``SearchOptions.scale_range``) of a range of depths.
+
+    A robot that knows its working distances need not search the scales it
+    cannot see: the depth of the reference point is ``fy * H / (scale * R)``
+    (the module docstring), so the nearest depth gives the largest scale.
+
+    Parameters
+    ----------
+    depths_m : array_like, shape (2,)
+        The nearest and the farthest depth of the object's reference point, metres.
+    camera : Camera
+        The test camera.
+    object_height_m : float or None
+        The model's object height (``PoseEstimator.object_height_m_``).
+    reference_size_px : float
+        The model's reference box height, pixels.
+
+    Returns
+    -------
+    (float, float)
+        The smallest and the largest scale.
+
+    Raises
+    ------
+    ValueError
+        If the depths are not two positive, finite metres, nearest first, or
+        the model has no object height (it was trained without distances).
+    """
+    try:
+        near, far = (float(d) for d in np.asarray(depths_m, dtype=np.float64).reshape(2))
+    except (TypeError, ValueError):
+        raise ValueError(f"depth range must be two numbers of metres, got {depths_m!r}") from None
+    if not (math.isfinite(near) and math.isfinite(far) and 0 < near < far < 1e4):
+        raise ValueError(f"depth range must be 0 < nearest < farthest metres, got {depths_m!r}")
+    if object_height_m is None:
+        raise ValueError("a depth range needs the object's height: train with a distance_m "
+                         "column and a camera, or give object_height_m")
+    if not isinstance(camera, Camera):
+        raise TypeError(f"camera must be a posevote.camera.Camera, got {type(camera).__name__}")
+    unit = camera.fy * object_height_m / reference_size_px
+    return unit / far, unit / near
+
+
 def place(hypothesis: Hypothesis, camera: Camera, *, reference_size_px: float,
           object_height_m: float | None, anchor: tuple[float, float] | None = None,
           depth_factor: float = 1.0) -> Hypothesis:

@@ -284,6 +284,8 @@ def train(source: Path, output: Path, layout: str, objects: str | None, cars: st
               help="In-plane angles searched, e.g. -30 30.")
 @click.option("--scale-range", nargs=2, type=float, default=None,
               help="Scales searched relative to training, e.g. 0.7 1.3.")
+@click.option("--depth-range", nargs=2, type=float, default=None, metavar="NEAR FAR",
+              help="Depths of the object searched, metres (with --camera; sets the scales).")
 @click.option("--no-fitting", is_flag=True, help="Skip the continuous refinement.")
 @click.option("--min-score", type=float, default=None, help="Report 'not found' below this.")
 @click.option("--threads", type=click.IntRange(1, 64), default=1, show_default=True,
@@ -294,6 +296,7 @@ def estimate(model: Path, images: tuple[Path, ...], as_json: bool, as_csv: bool,
              out: Path | None, jobs: int, max_objects: int, scheduler: str | None,
              overlay: Path | None,
              inplane_range_deg: tuple[float, float] | None, scale_range: tuple[float, float] | None,
+             depth_range: tuple[float, float] | None,
              no_fitting: bool, min_score: float | None, threads: int,
              camera_file: Path | None) -> None:
     """Estimate the pose of the object in each of IMAGES (files, folders, glob patterns).
@@ -302,20 +305,31 @@ def estimate(model: Path, images: tuple[Path, ...], as_json: bool, as_csv: bool,
     read (the others are still estimated).
     """
     from posevote.batch import expand_images
-    from posevote.camera import read_camera
+    from posevote.camera import read_camera, scale_range_for_depths
     from posevote.estimator import PoseEstimator
 
     if as_json and as_csv:
         raise click.BadParameter("give --json or --csv, not both", param_hint="--csv")
+    if depth_range is not None and (scale_range is not None or camera_file is None):
+        raise click.BadParameter("needs --camera, and replaces --scale-range",
+                                 param_hint="--depth-range")
     if overlay is not None:
         _output_file(overlay, "--overlay", suffixes=IMAGE_SUFFIXES)
     if out is not None:
         _output_folder(out, "--out")
     try:
         est = PoseEstimator.load(model)
+        camera = None if camera_file is None else read_camera(camera_file)
         changes: dict[str, Any] = {"n_jobs": threads}
         if inplane_range_deg is not None:
             changes["search__inplane_range_deg"] = tuple(inplane_range_deg)
+        if depth_range is not None and camera is not None:
+            try:
+                scale_range = scale_range_for_depths(
+                    depth_range, camera, object_height_m=est.object_height_m_,
+                    reference_size_px=est.model_.reference_size)
+            except ValueError as exc:
+                raise click.BadParameter(str(exc), param_hint="--depth-range") from None
         if scale_range is not None:
             changes["search__scale_range"] = tuple(scale_range)
             changes["search__scale_steps"] = max(est.search.scale_steps, 5)
@@ -324,7 +338,6 @@ def estimate(model: Path, images: tuple[Path, ...], as_json: bool, as_csv: bool,
         if min_score is not None:
             changes["min_score"] = min_score
         est.set_params(**changes)
-        camera = None if camera_file is None else read_camera(camera_file)
         paths = expand_images(images)
         if overlay is not None and len(paths) != 1:
             raise click.BadParameter(f"applies to one image; {len(paths)} given",

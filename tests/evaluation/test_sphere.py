@@ -63,3 +63,18 @@ def test_cli_evaluates_the_rendered_sphere(tmp_path, monkeypatch):
     assert result.exit_code == 2 and "--data" in result.output
     result = CliRunner().invoke(cli, ["evaluate", "epfl-cv", "--out", str(tmp_path / "e")])
     assert result.exit_code == 2 and "needs the data folder" in result.output
+
+
+def test_known_depths_search_the_scales_of_the_test_depths(tmp_path, monkeypatch):
+    from posevote import PoseEstimator
+
+    seen = []
+    estimate = PoseEstimator.estimate
+    monkeypatch.setattr(PoseEstimator, "estimate",
+                        lambda self, *a, **k: seen.append(self.search) or estimate(self, *a, **k))
+    run_sphere(SphereSetup(n_images=1, known_depths=True, **_SMALL), tmp_path)
+    low, high = seen[-1].scale_range
+    # The model's height is learnt from the training distances: about the pasted scales.
+    assert low == pytest.approx(sphere.SCALE_RANGE[0], rel=0.05)
+    assert high == pytest.approx(sphere.SCALE_RANGE[1], rel=0.05)
+    assert "the test depths known" in (tmp_path / "report.md").read_text()

@@ -41,7 +41,7 @@ from numpy.typing import NDArray
 
 from posevote._io import atomic_write_text
 from posevote._parallel import ordered_map
-from posevote.camera import Camera, object_height_from_distances
+from posevote.camera import Camera, object_height_from_distances, scale_range_for_depths
 from posevote.estimator import PoseEstimator
 from posevote.evaluation.metrics import FLIP_DEG, summarize_errors
 from posevote.evaluation.rendering import MESHES, RenderedView, render_focal, render_turntable
@@ -80,6 +80,11 @@ class SphereSetup:
         Test the views as rendered, on black, with the ``default`` preset.
     params : mapping
         Estimator settings over the preset (``set_params`` keys).
+    known_depths : bool
+        Tell the estimator the depths the test views are pasted at (the
+        render distance over :data:`SCALE_RANGE`), in metres through the
+        camera (:func:`posevote.camera.scale_range_for_depths`), as a robot
+        that knows its working distances would.
     """
 
     mesh: str = "r2d2.urdf"
@@ -88,6 +93,7 @@ class SphereSetup:
     elevations_deg: tuple[float, ...] = ELEVATIONS_DEG
     clean: bool = False
     params: Mapping[str, Any] = field(default_factory=dict)
+    known_depths: bool = False
 
     def __post_init__(self) -> None:
         if self.mesh not in MESHES:
@@ -159,6 +165,11 @@ def estimate_record(model_path: str, setup: SphereSetup, seed: int) -> dict[str,
         shape = CANVAS
     focal = render_focal(SIZE)
     camera = Camera(fx=focal, fy=focal, cx=(shape[1] - 1) / 2.0, cy=(shape[0] - 1) / 2.0)
+    if setup.known_depths:
+        depths = (view.distance / SCALE_RANGE[1], view.distance / SCALE_RANGE[0])
+        est.set_params(search__scale_range=scale_range_for_depths(
+            depths, camera, object_height_m=est.object_height_m_,
+            reference_size_px=est.model_.reference_size))
     start = time.perf_counter()
     result = est.estimate(pasted.image, camera=camera)
     seconds = time.perf_counter() - start
@@ -204,11 +215,13 @@ def report_text(setup: SphereSetup, summary: dict[str, Any], n_views: int) -> st
     """The report in words (markdown)."""
     where = "as rendered, on black" if setup.clean else \
         "pasted on 256 x 256 clutter, scale 0.8-1.25, in-plane within 30 deg, 20% hidden"
+    told = "; the test depths known (the scales searched from them)" \
+        if setup.known_depths else ""
     return (f"# rendered-sphere: {setup.mesh}\n\n"
             f"{n_views} training views (azimuth every {AZIMUTH_STEP_DEG} deg at elevations "
             f"{', '.join(f'{e:g}' for e in setup.elevations_deg)} deg); {summary['n']} test views "
             f"at random azimuths and elevations, {where}; preset `{setup.preset}`, overrides "
-            f"{dict(setup.params) or 'none'}; seed {setup.seed}.\n\n"
+            f"{dict(setup.params) or 'none'}{told}; seed {setup.seed}.\n\n"
             f"| rotation median ° | rotation mean ° | % < 10° | % < 30° | flips % (> {FLIP_DEG:g}°) "
             "| translation median (% of depth) | % translation < 2% | detected % | s / image |\n"
             "|---|---|---|---|---|---|---|---|---|\n"
