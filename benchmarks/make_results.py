@@ -66,7 +66,10 @@ variants by `benchmarks/rendered_sphere.py`: the same views as rendered, on blac
 [`results/rendered_sphere_clean.md`](results/rendered_sphere_clean.md) (`--clean`); one
 elevation in the same clutter:
 [`results/rendered_sphere_turntable.md`](results/rendered_sphere_turntable.md)
-(`--elevations 15`).
+(`--elevations 15`); the test depths told to the estimator, as `posevote
+estimate --depth-range` does:
+[`results/rendered_sphere_known_depths.md`](results/rendered_sphere_known_depths.md)
+(`--known-depths`).
 
 All 40 development objects of `../shared/data/coil-100` (the paper's 16 and
 the 24 added for cross-validation, among them objects that look alike from
