@@ -175,6 +175,13 @@ def test_cli_depth_range_sets_the_scales_searched(metric_folder, draw, monkeypat
     unit = CAM["fy"] * est.object_height_m_ / est.model_.reference_size
     np.testing.assert_allclose(seen[-1].scale_range, (unit / 1.8, unit / 1.2))
     assert json.loads(r.output)["best"]["t_cam_obj_m"][2] == pytest.approx(1.5, rel=0.2)
+    # A batch's workers search the same scales.
+    seen.clear()
+    r = runner.invoke(cli, ["estimate", str(model), str(test), str(test), "--json", "--camera",
+                            cam, "--depth-range", "1.2", "1.8"])
+    assert r.exit_code == 0, r.output
+    assert len(r.output.splitlines()) == 2 and len(seen) == 2
+    assert all(np.allclose(o.scale_range, (unit / 1.8, unit / 1.2)) for o in seen)
     r = runner.invoke(cli, ["estimate", str(model), str(test), "--depth-range", "1", "2"])
     assert r.exit_code == 2 and "needs --camera" in r.output
     r = runner.invoke(cli, ["estimate", str(model), str(test), "--camera", cam,
