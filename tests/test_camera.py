@@ -187,6 +187,12 @@ def test_cli_depth_range_sets_the_scales_searched(metric_folder, draw, monkeypat
     r = runner.invoke(cli, ["estimate", str(model), str(test), "--camera", cam,
                             "--depth-range", "2", "1"])
     assert r.exit_code == 2 and "nearest < farthest" in r.output
+    r = runner.invoke(cli, ["estimate", str(model), str(test), "--camera", cam,
+                            "--depth-range", "1", "2", "--scale-range", "0.8", "1.2"])
+    assert r.exit_code == 2 and "not both" in r.output
+    r = runner.invoke(cli, ["estimate", str(model), str(test), "--camera", cam,
+                            "--depth-range", "900", "1000"])
+    assert r.exit_code == 2 and "times the training size, outside 0.05-20" in r.output
 
 
 def test_cli_metric_inputs_refused(metric_folder):

@@ -310,8 +310,11 @@ def estimate(model: Path, images: tuple[Path, ...], as_json: bool, as_csv: bool,
 
     if as_json and as_csv:
         raise click.BadParameter("give --json or --csv, not both", param_hint="--csv")
-    if depth_range is not None and (scale_range is not None or camera_file is None):
-        raise click.BadParameter("needs --camera, and replaces --scale-range",
+    if depth_range is not None and camera_file is None:
+        raise click.BadParameter("needs --camera (depths become scales through it)",
+                                 param_hint="--depth-range")
+    if depth_range is not None and scale_range is not None:
+        raise click.BadParameter("give --depth-range or --scale-range, not both",
                                  param_hint="--depth-range")
     if overlay is not None:
         _output_file(overlay, "--overlay", suffixes=IMAGE_SUFFIXES)
@@ -330,6 +333,11 @@ def estimate(model: Path, images: tuple[Path, ...], as_json: bool, as_csv: bool,
                     reference_size_px=est.model_.reference_size)
             except ValueError as exc:
                 raise click.BadParameter(str(exc), param_hint="--depth-range") from None
+            if not 0.05 <= scale_range[0] <= scale_range[1] <= 20:
+                raise click.BadParameter(
+                    f"{depth_range[0]:g}-{depth_range[1]:g} m are {scale_range[0]:.3g}-"
+                    f"{scale_range[1]:.3g} times the training size, outside 0.05-20",
+                    param_hint="--depth-range")
         if scale_range is not None:
             changes["search__scale_range"] = tuple(scale_range)
             changes["search__scale_steps"] = max(est.search.scale_steps, 5)
