@@ -480,6 +480,14 @@ def _probe_features(model: PoseModel, azimuth: float, elevation: float, *,
     return made
 
 
+def _search_features(model: PoseModel, azimuth: float, elevation: float,
+                     kw: dict[str, Any]) -> tuple[NDArray[Any], ...]:
+    """:func:`_probe_features` with the settings of a search's keywords (``probe``'s ``kw``)."""
+    return _probe_features(model, azimuth, elevation, viewpoint_kappa=kw["viewpoint_kappa"],
+                           use_weights=kw["use_weights"], k1_cutoff=kw["k1_cutoff"],
+                           max_features=kw["max_features"], max_voters=kw["max_voters"])
+
+
 def probe_poses(
     model: PoseModel,
     maps: TestMaps | Sequence[TestMaps],
@@ -703,10 +711,7 @@ def _polished_near_modes(model: PoseModel, maps: TestMaps, az: NDArray[np.float6
     reach = np.cos(POLISH_REACH_STEPS * probe_spacing(rough))
     score, translation = rough.score.copy(), rough.translation.copy()
     for v in np.flatnonzero((d @ d[top].T >= reach).any(axis=1)):
-        xy, theta, weight, _, _ = _probe_features(
-            model, float(az[v]), float(el[v]), viewpoint_kappa=kw["viewpoint_kappa"],
-            use_weights=kw["use_weights"], k1_cutoff=kw["k1_cutoff"],
-            max_features=kw["max_features"], max_voters=kw["max_voters"])
+        xy, theta, weight, _, _ = _search_features(model, float(az[v]), float(el[v]), kw)
         if weight.sum() > 0:
             score[v], translation[v] = polish_translations(
                 maps, xy, theta, weight, inplanes=kw["inplanes"], scales=scales,
@@ -798,11 +803,7 @@ def _coarse_to_fine(model: PoseModel, maps: list[TestMaps], az: NDArray[np.float
     probed[fine] = True
     for v in np.flatnonzero(~probed[:, 0, 0]):
         # The fit and the refinements read boxes everywhere (cached features).
-        box[v] = _probe_features(model, float(az[v]), float(el[v]),
-                                 viewpoint_kappa=kw["viewpoint_kappa"],
-                                 use_weights=kw["use_weights"], k1_cutoff=kw["k1_cutoff"],
-                                 max_features=kw["max_features"],
-                                 max_voters=kw["max_voters"])[3]
+        box[v] = _search_features(model, float(az[v]), float(el[v]), kw)[3]
     return ProbeSet(azimuth=np.asarray(az, dtype=float), elevation=np.asarray(el, dtype=float),
                     inplane=rough.inplane, scale=rough.scale, score=score,
                     translation=translation, box=box, probed=probed)
