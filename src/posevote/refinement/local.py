@@ -344,10 +344,16 @@ def rescale_anchor(probes: ProbeSet, viewpoint: int, model: PoseModel,
         return None
     value = np.array([f[0] for f in found])
     if correlate is not None:
-        factor = np.maximum(correlate([f[1] for f in found]), CORRELATION_FLOOR)
+        factor = _weights(correlate, [f[1] for f in found])
         value = np.where(value > 0, value * factor, value)
     best = found[int(np.argmax(value))]
     return best[1], best[2]
+
+
+def _weights(correlate: Callable[[list[Hypothesis]], NDArray[np.float64]],
+             poses: list[Hypothesis]) -> NDArray[np.float64]:
+    """The factor that weighs each pose's score by its grey levels: its correlation, floored."""
+    return np.maximum(correlate(poses), CORRELATION_FLOOR)
 
 
 def _score_options(setup: SearchSetup) -> dict[str, Any]:
@@ -464,8 +470,7 @@ def profile_refine(probes: ProbeSet, viewpoint: int, model: PoseModel, maps: Tes
                                     k1_cutoff=k1_cutoff, scale_bounds=bounds))
     score = np.array([h.score for h in polished])
     if correlate is not None:
-        found = correlate([in_frame(h, 1.0 / frame_scale) for h in polished])
-        score = score * np.maximum(found, CORRELATION_FLOOR)
+        score = score * _weights(correlate, [in_frame(h, 1.0 / frame_scale) for h in polished])
     profile = ProbeSet(azimuth=probes.azimuth[views], elevation=probes.elevation[views],
                        inplane=np.zeros(1), scale=np.ones(1), score=score[:, None, None],
                        translation=np.zeros((len(views), 1, 1, 2)), box=probes.box[views])
@@ -480,8 +485,7 @@ def profile_refine(probes: ProbeSet, viewpoint: int, model: PoseModel, maps: Tes
                                  scale_bounds=bounds), 1.0 / frame_scale)
     if correlate is not None:
         # Scored as the profile's poses were, so that modes and images compare.
-        final = replace(final, score=final.score * max(float(correlate([final])[0]),
-                                                       CORRELATION_FLOOR))
+        final = replace(final, score=final.score * float(_weights(correlate, [final])[0]))
     return replace(final, refined=True)
 
 
