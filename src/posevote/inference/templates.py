@@ -26,8 +26,9 @@ from posevote.inference.search import ProbeSet
 from posevote.model.density import PoseModel
 from posevote.model.templates import TEMPLATE_BLUR, template_frame
 
-#: Probes re-ranked (docs/DEFAULTS.md, "Template re-ranking").
-TEMPLATE_CANDIDATES = 300
+#: Probes re-ranked: enough to reach an occluded object whose edges rank in the
+#: thousands on a dense texture (docs/DEFAULTS.md, "Template re-ranking").
+TEMPLATE_CANDIDATES = 5000
 #: Tiles across the mask's box, the share of them kept (the best ones), and
 #: the fewest template pixels a tile needs to count.
 TILES = 4
