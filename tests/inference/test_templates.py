@@ -112,21 +112,49 @@ def test_template_reranking_tells_the_object_from_its_negative(fitted_estimator,
         ranked, _ = est.probe(image)
         assert (_best_u(ranked) > 128) == bool(true_at)
         assert (est.estimate(image).best.position[0] > 128) == bool(true_at)
-    # The best probes are scaled by their correlations, the rest by the lowest of them
-    # (fewer candidates than this image's scored probes, so that there is a rest).
+    # The best probes, and those beyond them whose edge score beats the best product, are
+    # scaled by their correlations, the rest by the lowest of them (fewer candidates than
+    # this image's scored probes, so that there is a rest).
     few = 50
     monkeypatch.setattr(templates, "TEMPLATE_CANDIDATES", few)
     ranked, _ = est.probe(image)
     plain, _ = fitted_estimator.probe(image)
     before, after = plain.score.ravel(), ranked.score.ravel()
     order = np.argsort(-before, kind="stable")
-    top, rest = order[:few], order[few:]
-    top = top[before[top] > 0]
-    factor = after[top] / before[top]
+    order = order[before[order] > 0]
+    top, deeper = order[:few], order[few:]
+    bar = after[top].max()
+    contenders, rest = deeper[before[deeper] > bar], deeper[before[deeper] <= bar]
+    looked = np.concatenate([top, contenders])
+    factor = after[looked] / before[looked]
     assert np.all((factor > 0) & (factor <= 1.0 + 1e-9))
-    positive = rest[before[rest] > 0]
-    assert positive.size > 0
-    np.testing.assert_allclose(after[positive], before[positive] * factor.min())
+    assert rest.size > 0
+    np.testing.assert_allclose(after[rest], before[rest] * factor.min())
+
+
+def test_template_reranking_reaches_past_its_candidates_for_a_probe_that_could_win(
+        fitted_estimator, synthetic_training, draw, monkeypatch):
+    from posevote import PoseEstimator
+
+    est = PoseEstimator(search=replace(fitted_estimator.search, rerank="template")).fit(
+        *synthetic_training[:2], boxes=synthetic_training[2])
+    # The side on which the negative's edges score best: the one candidate is the negative.
+    images = [_copies(draw, np.radians(60), true_at=t, negative_at=1 - t) for t in (0, 1)]
+    true_at = next(t for t, im in enumerate(images)
+                   if (_best_u(fitted_estimator.probe(im)[0]) > 128) != bool(t))
+    image = images[true_at]
+    many, _ = est.probe(image)
+    # One candidate: the probes whose edges beat its product are looked at too, so that
+    # the re-ranked best is the one a re-ranking of every probe finds.
+    monkeypatch.setattr(templates, "TEMPLATE_CANDIDATES", 1)
+    one, _ = est.probe(image)
+    assert np.argmax(one.score) == np.argmax(many.score)
+    assert (_best_u(one) > 128) == bool(true_at)
+    plain, _ = fitted_estimator.probe(image)
+    scored = plain.score > 0
+    factor = one.score[scored] / plain.score[scored]
+    # More probes than the one candidate carry a correlation of their own.
+    assert np.count_nonzero(~np.isclose(factor, factor.min())) >= 1
 
 
 def test_a_model_not_fitted_for_templates_is_refused(fitted_estimator, draw):

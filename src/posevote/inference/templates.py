@@ -1,7 +1,9 @@
 """The search's best probes re-ranked by how well the image matches the object's grey levels.
 
 Beyond the paper (``SearchOptions.rerank = "template"``). Under each of the
-best :data:`TEMPLATE_CANDIDATES` probes, the test image is sampled at the
+best :data:`TEMPLATE_CANDIDATES` probes, and of every further probe whose edge
+score exceeds the best of their products (those that could still come first:
+a product never exceeds its edge score), the test image is sampled at the
 places of the nearest training view's template pixels
 (:mod:`posevote.model.templates`) and compared with them by normalised
 cross-correlation in :data:`TILES` x :data:`TILES` tiles of the template's
@@ -26,9 +28,9 @@ from posevote.inference.search import ProbeSet
 from posevote.model.density import PoseModel
 from posevote.model.templates import TEMPLATE_BLUR, template_frame
 
-#: Probes re-ranked: enough to reach an occluded object whose edges rank in the
-#: thousands on a dense texture (docs/DEFAULTS.md, "Template re-ranking").
-TEMPLATE_CANDIDATES = 5000
+#: Probes re-ranked at least; beyond them, every probe whose edge score beats the
+#: best product (docs/DEFAULTS.md, "Template re-ranking").
+TEMPLATE_CANDIDATES = 300
 #: Tiles across the mask's box, the share of them kept (the best ones), and
 #: the fewest template pixels a tile needs to count.
 TILES = 4
@@ -258,14 +260,27 @@ def rerank_by_template(probes: ProbeSet, model: PoseModel, image: NDArray[np.flo
         If the model has no templates (:func:`pose_correlations`) and a probe scores.
     """
     score = probes.score
-    best = np.argsort(-score.ravel(), kind="stable")[:TEMPLATE_CANDIDATES]
-    best = best[score.ravel()[best] > 0]
-    if len(best) == 0:
+    flat = score.ravel()
+    order = np.argsort(-flat, kind="stable")
+    order = order[flat[order] > 0]
+    if len(order) == 0:
         return probes
-    v, a, k = np.unravel_index(best, score.shape)
-    found = pose_correlations(model, image, probes.azimuth[v], probes.elevation[v],
-                              probes.inplane[a], probes.scale[k], probes.translation[v, a, k])
-    found = np.maximum(found, CORRELATION_FLOOR)
+
+    def correlate(chosen: NDArray[np.intp]) -> NDArray[np.float64]:
+        v, a, k = np.unravel_index(chosen, score.shape)
+        found = pose_correlations(model, image, probes.azimuth[v], probes.elevation[v],
+                                  probes.inplane[a], probes.scale[k],
+                                  probes.translation[v, a, k])
+        return np.maximum(found, CORRELATION_FLOOR)
+
+    best, rest = order[:TEMPLATE_CANDIDATES], order[TEMPLATE_CANDIDATES:]
+    found = correlate(best)
+    # A probe's product cannot exceed its edge score: every one scoring above the
+    # best product so far could still come first, however deep in the ranking.
+    contender = rest[flat[rest] > float(np.max(flat[best] * found))]
+    if len(contender):
+        best, found = np.concatenate([best, contender]), np.concatenate(
+            [found, correlate(contender)])
     factor = np.full(score.size, float(found.min()))
     factor[best] = found
     return replace(probes, score=np.where(score > 0, score * factor.reshape(score.shape), score))
