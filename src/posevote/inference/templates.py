@@ -217,8 +217,10 @@ def pose_correlations(model: PoseModel, image: NDArray[np.floating],
         raise ValueError("SearchOptions.rerank='template' needs the views' templates, "
                          "learnt when the model is fitted with it; fit (or retrain) with "
                          "search.rerank='template'")
-    nearest = np.argmax(viewing_direction(azimuth, elevation) @ viewing_direction(
-        model.view_azimuth, model.view_elevation).T, axis=1)
+    # Per distinct viewpoint: thousands of candidates share a few hundred.
+    pairs, back = np.unique(np.column_stack([azimuth, elevation]), axis=0, return_inverse=True)
+    nearest = np.argmax(viewing_direction(pairs[:, 0], pairs[:, 1]) @ viewing_direction(
+        model.view_azimuth, model.view_elevation).T, axis=1)[back.ravel()]
     views, view_of = np.unique(nearest, return_inverse=True)
     view_of = view_of.ravel()
     pixels = [template_pixels(model.view_template[view]) for view in views]
