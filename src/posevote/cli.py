@@ -307,6 +307,7 @@ def estimate(model: Path, images: tuple[Path, ...], as_json: bool, as_csv: bool,
     from posevote.batch import expand_images
     from posevote.camera import read_camera, scale_range_for_depths
     from posevote.estimator import PoseEstimator
+    from posevote.inference.search import SCALE_LIMITS
 
     if as_json and as_csv:
         raise click.BadParameter("give --json or --csv, not both", param_hint="--csv")
@@ -333,10 +334,11 @@ def estimate(model: Path, images: tuple[Path, ...], as_json: bool, as_csv: bool,
                     reference_size_px=est.model_.reference_size)
             except ValueError as exc:
                 raise click.BadParameter(str(exc), param_hint="--depth-range") from None
-            if not 0.05 <= scale_range[0] <= scale_range[1] <= 20:
+            lo, hi = SCALE_LIMITS
+            if not lo <= scale_range[0] <= scale_range[1] <= hi:
                 raise click.BadParameter(
                     f"{depth_range[0]:g}-{depth_range[1]:g} m are {scale_range[0]:.3g}-"
-                    f"{scale_range[1]:.3g} times the training size, outside 0.05-20",
+                    f"{scale_range[1]:.3g} times the training size, outside {lo:g}-{hi:g}",
                     param_hint="--depth-range")
         if scale_range is not None:
             changes["search__scale_range"] = tuple(scale_range)

@@ -60,6 +60,9 @@ NEAR_SCALE_STEPS = 1.5
 #: those that score best on the first: chosen on the five epfl-cv folds (the
 #: same share under 45 degrees on each fold as all scales everywhere).
 RANKING_VIEWPOINTS = 1.0 / 3.0
+#: The scales a search may be given (``SearchOptions.scale_range``): below, an
+#: object of the training size is a few pixels; above, its maps outgrow memory.
+SCALE_LIMITS = (0.05, 20.0)
 #: On the viewing sphere (viewpoints at several elevations) the ranking search
 #: probes the every-other scales first at a subset of viewpoints this many grid
 #: spacings apart, then at every viewpoint within that reach of the best
@@ -148,9 +151,9 @@ class SearchOptions(Options):
             self._fail("inplane_range_deg", "a span under 360 degrees", self.inplane_range_deg)
         self._number("inplane_step_deg", low=0.1, high=180.0)
         low, high = self._pair("scale_range")
-        if not 0.05 <= low <= high <= 20:
-            self._fail("scale_range", "(low, high) with 0.05 <= low <= high <= 20",
-                       self.scale_range)
+        if not SCALE_LIMITS[0] <= low <= high <= SCALE_LIMITS[1]:
+            self._fail("scale_range", f"(low, high) with {SCALE_LIMITS[0]:g} <= low <= high "
+                       f"<= {SCALE_LIMITS[1]:g}", self.scale_range)
         self._number("scale_steps", low=1, high=MAX_GRID_STEPS, integer=True)
         for name in ("object_kernel", "chance_correction"):
             self._flag(name)
