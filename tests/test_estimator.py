@@ -1,4 +1,5 @@
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -421,3 +422,28 @@ def test_two_objects_in_one_image(fitted_estimator, draw, tmp_path):
     assert r.exit_code == 0, r.output
     lines = [json.loads(line) for line in r.output.splitlines()]
     assert [rec["object"] for rec in lines] == [0, 1] and all(rec["found"] for rec in lines)
+
+
+def test_a_turned_pose_keeps_the_found_pose_as_the_next_mode(synthetic_training, draw,
+                                                             monkeypatch):
+    import posevote.estimator as estimator_module
+
+    images, az, boxes = synthetic_training
+    est = PoseEstimator.from_preset("cluttered", max_modes=2).fit(images, az, boxes=boxes)
+    img = draw(np.radians(50.0), scale=0.9, centre=(66.0, 62.0))
+    found = est.estimate(img).best
+    calls = []
+
+    def turn(hypothesis, *args):
+        calls.append(hypothesis)
+        return replace(hypothesis, azimuth=float(np.mod(hypothesis.azimuth + np.pi, 2 * np.pi)))
+
+    monkeypatch.setattr(estimator_module, "half_turn", turn)
+    result = est.estimate(img)
+    assert len(calls) == 1 and len(result.modes) == 2
+    assert result.best.azimuth == pytest.approx(np.mod(found.azimuth + np.pi, 2 * np.pi))
+    assert result.modes[1].azimuth == pytest.approx(found.azimuth)
+    # Only with the templates (and the local refinement) does the check run.
+    plain = PoseEstimator(local_refinement=True).fit(images, az, boxes=boxes)
+    plain.estimate(img)
+    assert len(calls) == 1

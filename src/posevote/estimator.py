@@ -46,6 +46,7 @@ from posevote.model.training import TrainedModel, extend_model, train_model
 from posevote.presets import get_preset, nearest_preset
 from posevote.refinement.appearance import appearance_refine
 from posevote.refinement.fitting import FIT_RADIUS_STEPS, find_modes, refine_mode
+from posevote.refinement.halfturn import half_turn
 from posevote.refinement.instance import RecognitionOptions, recognize
 from posevote.refinement.local import local_refine, rescale_mode
 from posevote.refinement.probability import scored_viewpoints, with_probabilities
@@ -372,12 +373,21 @@ class PoseEstimator(GroupedParams):
             # (one instance: a category's pooled views pull it onto inner edges).
             hyps[0] = rescale_mode(hyps[0], model, image_maps(feats, shape, setup), setup)
         if self.local_refinement and hyps:
+            correlate = self._correlate(img)
             # In object units, at the probes' own scales (after the verification,
             # only those near its box).
             hyps[0] = local_refine(probes, modes[0], hyps[0], model, setup, fitting=self.fitting,
                                    features=feats, shape=shape, maps=fine,
-                                   object_units=self.search.object_kernel,
-                                   correlate=self._correlate(img))
+                                   object_units=self.search.object_kernel, correlate=correlate)
+            if correlate is not None and not recognizing:
+                # A plainer side over the other explains itself as fully: the
+                # image's own edges decide (measured with the templates).
+                turned = half_turn(hyps[0], model, image_maps(feats, shape, setup), setup,
+                                   correlate)
+                if turned is not hyps[0]:
+                    # The search's profile still favours the found pose's side: it
+                    # stays, as the next mode, with the probability of its side.
+                    hyps = [turned, *hyps][:self.max_modes]
         instance, margin = "", float("nan")
         if recognizing and hyps and fine is not None and self.recognition is not None:
             hyps, instance, margin = recognize(hyps, feats, self.full_model_, maps, fine, setup,

@@ -4,7 +4,14 @@ import cv2
 import numpy as np
 import pytest
 
-from posevote.model.outline import OUTLINE_ANGLES, box_outline, mask_outline, outline_at, outline_box
+from posevote.model.outline import (
+    OUTLINE_ANGLES,
+    box_outline,
+    inside_outline,
+    mask_outline,
+    outline_at,
+    outline_box,
+)
 from posevote.refinement.fitting import box_from_pose
 
 
@@ -58,3 +65,18 @@ def test_outline_at_averages_the_views_near_a_viewpoint(toy_model):
     sharp = outline_at(model, float(model.view_azimuth[nearest]),
                        float(model.view_elevation[nearest]), kappa=1e4, k1_cutoff=0.1)
     np.testing.assert_allclose(sharp, outlines[nearest], atol=1e-6)
+
+
+def test_inside_outline_follows_the_turned_and_scaled_mask():
+    mask = np.zeros((80, 80), bool)
+    mask[20:40, 10:70] = True  # 60 wide, 20 tall, reference point at its centre
+    outline = mask_outline(mask, (40.0, 30.0), 0.0)
+    alpha, scale, position = np.radians(90.0), 0.5, np.array([100.0, 50.0])
+    # Turned a quarter, halved: 10 wide and 30 tall around (100, 50).
+    inside = inside_outline([[100.0, 50.0], [100.0, 63.0], [103.0, 50.0], [100.0, 68.0],
+                             [108.0, 50.0]], outline, position, scale, alpha)
+    assert inside.tolist() == [True, True, True, False, False]
+    # Every mask pixel lies inside its own outline, and no point beyond its box does.
+    rows, cols = np.nonzero(mask)
+    assert inside_outline(np.column_stack([cols, rows]), outline, (40.0, 30.0), 1.0, 0.0).all()
+    assert not inside_outline([[75.0, 30.0], [40.0, 45.0]], outline, (40.0, 30.0), 1.0, 0.0).any()

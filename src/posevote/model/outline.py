@@ -85,6 +85,32 @@ def outline_box(outline: NDArray[np.float64], position: tuple[float, float], sca
     return float(x - left), float(y - up), float(left + right), float(up + down)
 
 
+def inside_outline(points: ArrayLike, outline: NDArray[np.float64], position: ArrayLike,
+                   scale: float, alpha: float) -> NDArray[np.bool_]:
+    """Which image points lie inside an outline turned by ``alpha``, scaled and placed.
+
+    Parameters
+    ----------
+    points : array_like, shape (N, 2)
+        Image points ``(u, v)``.
+    outline : ndarray, shape (:data:`OUTLINE_ANGLES`,)
+        A support function (:func:`mask_outline`, :func:`outline_at`).
+    position : array_like, shape (2,)
+        Where the reference point lies, pixels.
+    scale, alpha : float
+        The pose's scale and in-plane angle (radians).
+
+    Returns
+    -------
+    ndarray of bool, shape (N,)
+        Inside the hull at every sampled direction (the hull's polygon of
+        those directions' tangent lines, which contains the hull).
+    """
+    upright = rotate_points(np.asarray(points, dtype=np.float64).reshape(-1, 2)
+                            - np.asarray(position, dtype=np.float64), -alpha) / scale
+    return np.asarray(np.all(upright @ _directions().T <= outline, axis=1), dtype=bool)
+
+
 def outline_at(model: PoseModel, azimuth: float, elevation: float, *, kappa: float,
                k1_cutoff: float) -> NDArray[np.float64] | None:
     """The outline at a viewpoint, reference pixels: the views' ``view_outline`` averaged
