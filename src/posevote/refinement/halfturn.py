@@ -153,8 +153,8 @@ def half_turn(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps, setup: S
         ``hypothesis`` itself, or the polished half-turn scored by its narrow
         score times its correlation (as the local refinement scores).
     """
-    opts: dict[str, Any] = {"viewpoint_kappa": setup.viewpoint_kappa, "use_weights": setup.use_weights,
-            "k1_cutoff": K1_CUTOFF}
+    opts: dict[str, Any] = {"viewpoint_kappa": setup.viewpoint_kappa,
+                            "use_weights": setup.use_weights, "k1_cutoff": K1_CUTOFF}
     found = polish_pose(hypothesis, model, maps, **opts)
     turned = float(np.mod(hypothesis.azimuth + np.pi, 2.0 * np.pi))
     candidates = [polish_pose(replace(hypothesis, azimuth=turned, scale=hypothesis.scale * f),
