@@ -33,7 +33,7 @@ from numpy.typing import NDArray
 from posevote.geometry import rotate_points
 from posevote.inference.coverage import MIN_BOX_EDGES
 from posevote.inference.maps import TestMaps
-from posevote.inference.search import SearchSetup, viewpoint_features
+from posevote.inference.search import SearchSetup, ViewpointFeatures, viewpoint_features
 from posevote.inference.templates import CORRELATION_FLOOR
 from posevote.model.density import PoseModel
 from posevote.model.kernels import (
@@ -55,15 +55,20 @@ _REACH_SIGMAS = 4.0
 _TYPICAL_POINTS = 256
 
 
+def _features(hypothesis: Hypothesis, model: PoseModel, setup: SearchSetup
+              ) -> ViewpointFeatures:
+    return viewpoint_features(model, hypothesis.azimuth, hypothesis.elevation,
+                              viewpoint_kappa=setup.viewpoint_kappa,
+                              use_weights=setup.use_weights, k1_cutoff=K1_CUTOFF)
+
+
 def _inside(hypothesis: Hypothesis, model: PoseModel, points: NDArray[np.float64],
-            setup: SearchSetup) -> NDArray[np.bool_]:
+            setup: SearchSetup, features: ViewpointFeatures) -> NDArray[np.bool_]:
     """Which points lie inside the pose's outline (its views' box where the model has none)."""
     outline = outline_at(model, hypothesis.azimuth, hypothesis.elevation,
                          kappa=setup.viewpoint_kappa, k1_cutoff=K1_CUTOFF)
     if outline is None:
-        outline = box_outline(viewpoint_features(
-            model, hypothesis.azimuth, hypothesis.elevation, viewpoint_kappa=setup.viewpoint_kappa,
-            use_weights=setup.use_weights, k1_cutoff=K1_CUTOFF).box)
+        outline = box_outline(features.box)
     return inside_outline(points, outline, hypothesis.position, hypothesis.scale,
                           hypothesis.inplane)
 
@@ -83,7 +88,8 @@ def _density(at_xy: NDArray[np.float64], at_theta: NDArray[np.float64],
 
 
 def edge_share(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps,
-               selected: NDArray[np.bool_], setup: SearchSetup) -> float:
+               selected: NDArray[np.bool_], setup: SearchSetup, *,
+               features: ViewpointFeatures | None = None) -> float:
     """The share of the selected test edges that the pose's features explain.
 
     As :func:`posevote.inference.coverage.coverage` reads it (the placed
@@ -101,6 +107,8 @@ def edge_share(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps,
     selected : ndarray of bool, shape (N,)
         The test edges counted.
     setup : SearchSetup
+    features : ViewpointFeatures, optional
+        The pose's viewpoint features, if already collected.
 
     Returns
     -------
@@ -110,9 +118,7 @@ def edge_share(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps,
     """
     if selected.sum() < MIN_BOX_EDGES:
         return 0.0
-    feats = viewpoint_features(model, hypothesis.azimuth, hypothesis.elevation,
-                               viewpoint_kappa=setup.viewpoint_kappa,
-                               use_weights=setup.use_weights, k1_cutoff=K1_CUTOFF)
+    feats = _features(hypothesis, model, setup) if features is None else features
     if len(feats.xy) == 0:
         return 0.0
     xy = hypothesis.scale * rotate_points(feats.xy, hypothesis.inplane) + np.asarray(
@@ -166,12 +172,15 @@ def half_turn(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps, setup: S
     other = poses[best]
     if not product[best] > 0:
         return hypothesis
+    found_feats, other_feats = _features(found, model, setup), _features(other, model, setup)
     # The edges inside either outline: the object's, wherever either pose puts it.
-    selected = _inside(found, model, maps.xy, setup) | _inside(other, model, maps.xy, setup)
-    share = edge_share(found, model, maps, selected, setup)
+    selected = (_inside(found, model, maps.xy, setup, found_feats)
+                | _inside(other, model, maps.xy, setup, other_feats))
+    share = edge_share(found, model, maps, selected, setup, features=found_feats)
     # A share is at most 1: the half-turn cannot win unless its product beats this.
     if product[best] <= product[0] * share:
         return hypothesis
-    if product[best] * edge_share(other, model, maps, selected, setup) > product[0] * share:
+    if product[best] * edge_share(other, model, maps, selected, setup,
+                                  features=other_feats) > product[0] * share:
         return replace(other, score=float(product[best]), refined=True)
     return hypothesis
