@@ -84,6 +84,30 @@ def draw():
     return draw_object
 
 
+def _segments(ends, step=2.0):
+    """Edge points every ``step`` px along segments ``(a, b)``, with their tangents."""
+    from posevote.features import EdgeFeatures
+
+    xy, theta = [], []
+    for a, b in (np.asarray(e, dtype=np.float64) for e in ends):
+        n = max(int(np.linalg.norm(b - a) / step), 1)
+        xy.append(a + (np.arange(n)[:, None] / n) * (b - a))
+        theta.append(np.full(n, np.mod(np.arctan2(*(b - a)[::-1]), np.pi)))
+    return EdgeFeatures(xy=np.concatenate(xy), theta=np.concatenate(theta))
+
+
+def _square(half):
+    """The four sides of a square centred on the origin, as segments."""
+    c = [[-half, -half], [half, -half], [half, half], [-half, half]]
+    return [(c[k], c[(k + 1) % 4]) for k in range(4)]
+
+
+@pytest.fixture(scope="session")
+def line_drawing():
+    """``(segments, square)``: edge features drawn along segments, and a square's sides."""
+    return _segments, _square
+
+
 def _toy_model(shared_feature=True):
     """Three views; view features at distinct places plus one feature common to all."""
     from posevote.features import EdgeFeatures

@@ -447,3 +447,26 @@ def test_a_turned_pose_keeps_the_found_pose_as_the_next_mode(synthetic_training,
     plain = PoseEstimator(local_refinement=True).fit(images, az, boxes=boxes)
     plain.estimate(img)
     assert len(calls) == 1
+
+
+def test_the_best_pose_takes_its_scale_from_both_directions_with_the_templates(
+        synthetic_training, draw, monkeypatch):
+    import posevote.estimator as estimator_module
+
+    images, az, boxes = synthetic_training
+    est = PoseEstimator.from_preset("cluttered").fit(images, az, boxes=boxes)
+    img = draw(np.radians(50.0), scale=0.9, centre=(66.0, 62.0))
+    calls = []
+
+    def grow(hypothesis, *args):
+        calls.append(hypothesis)
+        return replace(hypothesis, scale=hypothesis.scale * 1.02)
+
+    monkeypatch.setattr(estimator_module, "share_scale", grow)
+    best = est.estimate(img).best
+    assert len(calls) == 1
+    assert best.scale == pytest.approx(calls[0].scale * 1.02)
+    assert best.score == pytest.approx(calls[0].score)
+    # Without the templates (the default and turntable presets) the scale is the refinement's.
+    PoseEstimator(local_refinement=True).fit(images, az, boxes=boxes).estimate(img)
+    assert len(calls) == 1

@@ -50,6 +50,7 @@ from posevote.refinement.halfturn import half_turn
 from posevote.refinement.instance import RecognitionOptions, recognize
 from posevote.refinement.local import local_refine, rescale_mode
 from posevote.refinement.probability import scored_viewpoints, with_probabilities
+from posevote.refinement.share import share_scale
 from posevote.results import Hypothesis, PoseEstimate
 
 ImageLike = str | Path | NDArray
@@ -380,14 +381,17 @@ class PoseEstimator(GroupedParams):
                                    features=feats, shape=shape, maps=fine,
                                    object_units=self.search.object_kernel, correlate=correlate)
             if correlate is not None and not recognizing:
+                pixel_maps = image_maps(feats, shape, setup)
                 # A plainer side over the other explains itself as fully: the
                 # image's own edges decide (measured with the templates).
-                turned = half_turn(hyps[0], model, image_maps(feats, shape, setup), setup,
-                                   correlate)
+                turned = half_turn(hyps[0], model, pixel_maps, setup, correlate)
                 if turned is not hyps[0]:
                     # The search's profile still favours the found pose's side: it
                     # stays, as the next mode, with the probability of its side.
                     hyps = [turned, *hyps][:self.max_modes]
+                # The narrow score draws the outline in onto the object's inner
+                # edges; the image's edges explained too set the scale.
+                hyps[0] = share_scale(hyps[0], model, pixel_maps, setup)
         instance, margin = "", float("nan")
         if recognizing and hyps and fine is not None and self.recognition is not None:
             hyps, instance, margin = recognize(hyps, feats, self.full_model_, maps, fine, setup,

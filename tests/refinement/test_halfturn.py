@@ -4,7 +4,7 @@ import pytest
 from posevote.features.edges import EdgeFeatures
 from posevote.inference.search import SearchOptions, SearchSetup, image_maps
 from posevote.model.density import build_model
-from posevote.refinement.halfturn import edge_share, half_turn
+from posevote.refinement.halfturn import half_turn
 from posevote.results import Hypothesis
 
 _SETUP = SearchSetup(options=SearchOptions(), position_sigma=2.0, edge_spacing=2.0,
@@ -13,28 +13,16 @@ _SETUP = SearchSetup(options=SearchOptions(), position_sigma=2.0, edge_spacing=2
 _BACK = 0.85
 
 
-def _segments(ends, step=2.0):
-    """Edge points every ``step`` px along segments ``(a, b)``, with their tangents."""
-    xy, theta = [], []
-    for a, b in (np.asarray(e, dtype=np.float64) for e in ends):
-        n = max(int(np.linalg.norm(b - a) / step), 1)
-        xy.append(a + (np.arange(n)[:, None] / n) * (b - a))
-        theta.append(np.full(n, np.mod(np.arctan2(*(b - a)[::-1]), np.pi)))
-    return EdgeFeatures(xy=np.concatenate(xy), theta=np.concatenate(theta))
+@pytest.fixture
+def sides(line_drawing):
+    """The face: a square and a cross inside it; the back: the same square only, larger."""
+    segments, square = line_drawing
+    face = segments(square(20.0) + [([-12.0, 0.0], [12.0, 0.0]), ([0.0, -12.0], [0.0, 12.0])])
+    return face, segments(square(20.0 / _BACK))
 
 
-def _square(half):
-    c = [[-half, -half], [half, -half], [half, half], [-half, half]]
-    return [(c[k], c[(k + 1) % 4]) for k in range(4)]
-
-
-# The face: a square and a cross inside it; the back: the same square only, larger.
-_FACE = _segments(_square(20.0) + [([-12.0, 0.0], [12.0, 0.0]), ([0.0, -12.0], [0.0, 12.0])])
-_BACK_VIEW = _segments(_square(20.0 / _BACK))
-
-
-def _model():
-    views = [EdgeFeatures(xy=f.xy + 50.0, theta=f.theta) for f in (_FACE, _BACK_VIEW)]
+def _model(sides):
+    views = [EdgeFeatures(xy=f.xy + 50.0, theta=f.theta) for f in sides]
     return build_model(views, poses=np.array([[0.0, 0.0, 0.0], [np.pi, 0.0, 0.0]]),
                        centers=np.full((2, 2), 50.0), scales=np.ones(2),
                        box_sizes=np.array([[40.0, 40.0], [47.0, 47.0]]), instances=[0, 0],
@@ -48,48 +36,34 @@ def _pose(azimuth, scale, position=(80.0, 80.0)):
                                               side, side), score=1.0, refined=True)
 
 
-def _maps(view, scale=1.0):
-    return image_maps(EdgeFeatures(xy=scale * view.xy + 80.0, theta=view.theta), (160, 160),
-                      _SETUP)
+def _maps(view):
+    return image_maps(EdgeFeatures(xy=view.xy + 80.0, theta=view.theta), (160, 160), _SETUP)
 
 
 def _flat(poses):
     return np.ones(len(poses))
 
 
-def test_the_plain_back_over_the_face_turns_to_the_face():
-    found = half_turn(_pose(np.pi, _BACK), _model(), _maps(_FACE), _SETUP, _flat)
+def test_the_plain_back_over_the_face_turns_to_the_face(sides):
+    found = half_turn(_pose(np.pi, _BACK), _model(sides), _maps(sides[0]), _SETUP, _flat)
     assert found.azimuth == pytest.approx(0.0, abs=1e-9)
     assert found.scale == pytest.approx(1.0, abs=0.03)
     assert np.allclose(found.position, (80.0, 80.0), atol=1.0)
 
 
-def test_the_right_pose_stays():
-    model = _model()
+def test_the_right_pose_stays(sides):
+    model = _model(sides)
     face = _pose(0.0, 1.0)
-    assert half_turn(face, model, _maps(_FACE), _SETUP, _flat) is face
+    assert half_turn(face, model, _maps(sides[0]), _SETUP, _flat) is face
     # The back seen from behind: the face's cross finds nothing there.
     back = _pose(np.pi, 1.0)
-    assert half_turn(back, model, _maps(_BACK_VIEW), _SETUP, _flat) is back
+    assert half_turn(back, model, _maps(sides[1]), _SETUP, _flat) is back
 
 
-def test_the_correlation_weighs_in():
+def test_the_correlation_weighs_in(sides):
     # A half-turn whose grey levels do not match is not taken, however many edges it explains.
     def against_the_face(poses):
         return np.array([0.2 if abs(p.azimuth) < 1.0 else 1.0 for p in poses])
 
     back = _pose(np.pi, _BACK)
-    assert half_turn(back, _model(), _maps(_FACE), _SETUP, against_the_face) is back
-
-
-def test_edge_share_counts_the_selected_edges_explained():
-    model, maps = _model(), _maps(_FACE)
-    everything = np.ones(len(maps.xy), dtype=bool)
-    face = edge_share(_pose(0.0, 1.0), model, maps, everything, _SETUP)
-    back = edge_share(_pose(np.pi, _BACK), model, maps, everything, _SETUP)
-    n_square = len(_segments(_square(20.0)).xy)
-    assert face > 0.9
-    assert back == pytest.approx(n_square / len(_FACE.xy), abs=0.1)
-    assert edge_share(_pose(0.0, 1.0), model, maps, np.zeros_like(everything), _SETUP) == 0.0
-
-
+    assert half_turn(back, _model(sides), _maps(sides[0]), _SETUP, against_the_face) is back
