@@ -2,13 +2,15 @@ import numpy as np
 import pytest
 
 from posevote.features.edges import EdgeFeatures
+from posevote.geometry import rotate_points
 from posevote.inference.search import SearchOptions, SearchSetup, image_maps
 from posevote.model.density import build_model
-from posevote.model.kernels import K1_CUTOFF
+from posevote.model.kernels import K1_CUTOFF, ORIENTATION_KAPPA, orientation_kernel, position_kernel
 from posevote.refinement.local import polish_pose
 from posevote.refinement.share import (
     SHARE_SCALE_SPAN,
     edge_share,
+    edge_shares,
     inside_pose,
     pose_features,
     share_scale,
@@ -50,6 +52,44 @@ def test_edge_share_counts_the_selected_edges_explained(line_drawing):
     plain = edge_share(_pose(1.0), _model(segments(square(20.0))), maps, everything, _SETUP)
     assert plain == pytest.approx(len(segments(square(20.0)).xy) / len(face.xy), abs=0.1)
     assert edge_share(_pose(1.0), _model(face), maps, np.zeros_like(everything), _SETUP) == 0.0
+
+
+def _share_reference(pose, feats, maps, selected, scale, reach_sigmas=4.0):
+    """Every pair of edges, no tree: the share at one scale."""
+    sigma = maps.position_sigma
+    xy = scale * rotate_points(feats.xy, pose.inplane) + np.asarray(pose.position)
+    theta = np.mod(feats.theta + pose.inplane, np.pi)
+
+    def density(at_xy, at_theta):
+        sq = np.sum((at_xy[:, None, :] - xy[None, :, :]) ** 2, axis=2)
+        k = position_kernel(sq, sigma) * orientation_kernel(at_theta[:, None] - theta[None, :],
+                                                            ORIENTATION_KAPPA)
+        return np.sum(np.where(sq <= (reach_sigmas * sigma) ** 2, k, 0.0), axis=1)
+
+    own = np.arange(0, len(xy), max(1, len(xy) // 256))
+    typical = np.median(density(xy[own], theta[own]))
+    return np.mean(np.minimum(density(maps.xy[selected], maps.theta[selected]) / typical, 1.0))
+
+
+def test_edge_shares_sum_every_pair_at_every_scale(line_drawing):
+    segments, square = line_drawing
+    # Sides off the 2 px grid: no pair of features lies exactly at the reach.
+    view = segments(square(19.3) + [([-12.0, 3.0], [10.0, -5.0])])
+    model = _model(view)
+    rng = np.random.default_rng(0)
+    image = EdgeFeatures(xy=np.concatenate([view.xy * 1.03 + 80.0, rng.uniform(50, 110, (60, 2))]),
+                         theta=np.concatenate([view.theta, rng.uniform(0, np.pi, 60)]))
+    maps = image_maps(image, (160, 160), _SETUP)
+    pose = Hypothesis(azimuth=0.0, elevation=0.0, inplane=0.2, scale=1.0, position=(80.5, 79.0),
+                      box=(60.0, 60.0, 40.0, 40.0), score=0.5, refined=True)
+    selected = rng.random(len(maps.xy)) < 0.8
+    feats = pose_features(pose, model, _SETUP)
+    scales = [0.94, 1.0, 1.03, 1.06]
+    got = edge_shares(pose, model, maps, selected, _SETUP, scales)
+    want = [_share_reference(pose, feats, maps, selected, s) for s in scales]
+    assert np.allclose(got, want, rtol=1e-9, atol=1e-12)
+    assert len(set(np.round(got, 6))) == len(scales)
+    assert edge_share(pose, model, maps, selected, _SETUP) == pytest.approx(want[1], rel=1e-9)
 
 
 def test_inside_pose_uses_the_views_box_without_an_outline(line_drawing):

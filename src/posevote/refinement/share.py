@@ -17,7 +17,7 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from posevote.geometry import rotate_points
 from posevote.inference.coverage import MIN_BOX_EDGES
@@ -67,67 +67,100 @@ def inside_pose(hypothesis: Hypothesis, model: PoseModel, points: NDArray[np.flo
                           hypothesis.inplane)
 
 
-def _density(at_xy: NDArray[np.float64], at_theta: NDArray[np.float64],
-             xy: NDArray[np.float64], theta: NDArray[np.float64], sigma: float
-             ) -> NDArray[np.float64]:
-    """The kernel density of the edges ``xy``, ``theta`` at each point, unnormalised."""
+def _pairs(a: NDArray[np.float64], b: NDArray[np.float64], radius: float
+           ) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+    """The index pairs ``(i, j)`` of the points ``a[i]``, ``b[j]`` within ``radius``."""
     from scipy.spatial import cKDTree
 
-    pairs = cKDTree(at_xy).sparse_distance_matrix(cKDTree(xy), _REACH_SIGMAS * sigma,
-                                                  output_type="ndarray")
-    i, j, d = pairs["i"], pairs["j"], pairs["v"]
-    value = position_kernel(d * d, sigma) * orientation_kernel(at_theta[i] - theta[j],
-                                                              ORIENTATION_KAPPA)
-    return np.asarray(np.bincount(i, weights=value, minlength=len(at_xy)), dtype=np.float64)
+    pairs = cKDTree(a).sparse_distance_matrix(cKDTree(b), radius, output_type="ndarray")
+    return pairs["i"].astype(np.intp), pairs["j"].astype(np.intp)
 
 
-def edge_share(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps,
-               selected: NDArray[np.bool_], setup: SearchSetup, *,
-               features: ViewpointFeatures | None = None) -> float:
-    """The share of the selected test edges that the pose's features explain.
+def edge_shares(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps,
+                selected: NDArray[np.bool_], setup: SearchSetup, scales: ArrayLike, *,
+                features: ViewpointFeatures | None = None) -> NDArray[np.float64]:
+    """The share of the selected test edges that the pose's features explain, at each scale.
 
     As :func:`posevote.inference.coverage.coverage` reads it (the placed
     model's density at each test edge over its typical density on its own
-    features, capped at 1, averaged), but summed exactly rather than read
-    from a grid: the decisions that use it turn on a few percent.
+    features, capped at 1, averaged), but summed exactly over the pairs of
+    edges within :data:`_REACH_SIGMAS` kernel widths rather than read from a
+    grid: the decisions that use it turn on a few percent. The pairs are
+    found once for every scale.
 
     Parameters
     ----------
     hypothesis : Hypothesis
-        In the frame of ``maps`` (image pixels).
+        In the frame of ``maps`` (image pixels); its scale is replaced by each of ``scales``.
     model : PoseModel
     maps : TestMaps
         The test edges (``xy``, ``theta``) and the narrow kernel's width.
     selected : ndarray of bool, shape (N,)
         The test edges counted.
     setup : SearchSetup
+    scales : array_like of float, shape (K,)
+        Positive scales, about the pose's position.
     features : ViewpointFeatures, optional
         The pose's viewpoint features, if already collected.
 
     Returns
     -------
-    float
+    ndarray, shape (K,)
         In [0, 1]; 0 with fewer than
         :data:`~posevote.inference.coverage.MIN_BOX_EDGES` edges selected.
     """
-    if selected.sum() < MIN_BOX_EDGES:
-        return 0.0
+    scales = np.asarray(scales, dtype=np.float64).reshape(-1)
+    shares = np.zeros(len(scales))
     feats = pose_features(hypothesis, model, setup) if features is None else features
-    if len(feats.xy) == 0:
-        return 0.0
-    xy = hypothesis.scale * rotate_points(feats.xy, hypothesis.inplane) + np.asarray(
-        hypothesis.position, dtype=np.float64)
-    theta = np.mod(feats.theta + hypothesis.inplane, np.pi)
+    if selected.sum() < MIN_BOX_EDGES or len(feats.xy) == 0 or len(scales) == 0:
+        return shares
     sigma = float(maps.position_sigma)
+    reach = _REACH_SIGMAS * sigma
+    xy = rotate_points(feats.xy, hypothesis.inplane)
+    theta = np.mod(feats.theta + hypothesis.inplane, np.pi)
+    test_xy = maps.xy[selected] - np.asarray(hypothesis.position, dtype=np.float64)
+    # The test edges near the model at a middle scale, far enough for every scale.
+    middle = float(np.sqrt(scales.min() * scales.max()))
+    drift = float(np.max(np.abs(scales - middle))) * float(np.max(np.linalg.norm(xy, axis=1)))
+    ti, tj = _pairs(test_xy, middle * xy, reach + drift)
+    test_turn = orientation_kernel(maps.theta[selected][ti] - theta[tj], ORIENTATION_KAPPA)
+    # |t - s m|^2 = |t|^2 - 2 s t.m + s^2 |m|^2: three terms per pair, once.
+    t_sq = np.sum(test_xy[ti] ** 2, axis=1)
+    t_dot_m = np.sum(test_xy[ti] * xy[tj], axis=1)
+    m_sq = np.sum(xy[tj] ** 2, axis=1)
     # Its typical density on itself (a pooled model stacks several views on each
-    # contour) and its density at the test edges, in one pass.
+    # contour): its distances scale with it.
     own = np.arange(0, len(xy), max(1, len(xy) // _TYPICAL_POINTS))
-    density = _density(np.concatenate([xy[own], maps.xy[selected]]),
-                       np.concatenate([theta[own], maps.theta[selected]]), xy, theta, sigma)
-    typical = float(np.median(density[:len(own)]))
-    if not typical > 0:
-        return 0.0
-    return float(np.mean(np.minimum(density[len(own):] / typical, 1.0)))
+    oi, oj = _pairs(xy[own], xy, reach / float(scales.min()))
+    own_turn = orientation_kernel(theta[own][oi] - theta[oj], ORIENTATION_KAPPA)
+    own_sq = np.sum((xy[own][oi] - xy[oj]) ** 2, axis=1)
+    for k, scale in enumerate(scales.tolist()):
+        sq = np.maximum(t_sq - 2.0 * scale * t_dot_m + scale * scale * m_sq, 0.0)
+        near = sq <= reach * reach
+        density = np.bincount(ti[near], weights=position_kernel(sq[near], sigma) * test_turn[near],
+                              minlength=len(test_xy))
+        own_near = scale * scale * own_sq <= reach * reach
+        typical = float(np.median(np.bincount(
+            oi[own_near], weights=position_kernel(scale * scale * own_sq[own_near], sigma)
+            * own_turn[own_near], minlength=len(own))))
+        if typical > 0:
+            shares[k] = float(np.mean(np.minimum(density / typical, 1.0)))
+    return shares
+
+
+def edge_share(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps,
+               selected: NDArray[np.bool_], setup: SearchSetup, *,
+               features: ViewpointFeatures | None = None) -> float:
+    """The share of the selected test edges that the pose's features explain, at its scale.
+
+    :func:`edge_shares` at the pose's own scale; the same parameters but ``scales``.
+
+    Returns
+    -------
+    float
+    """
+    return float(edge_shares(hypothesis, model, maps, selected, setup, [hypothesis.scale],
+                             features=features)[0])
 
 
 def share_scale(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps,
@@ -163,13 +196,11 @@ def share_scale(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps,
     grown = replace(hypothesis, scale=hypothesis.scale * SHARE_SCALE_REACH)
     selected = inside_pose(grown, model, maps.xy, setup, feats)
     steps = np.linspace(-1.0, 1.0, SHARE_SCALE_STEPS) * np.log(SHARE_SCALE_SPAN)
-    value = np.zeros(len(steps))
-    for k, step in enumerate(steps):
-        pose = replace(hypothesis, scale=hypothesis.scale * float(np.exp(step)))
-        score = gather_score(maps.density, maps.frame, feats.xy, feats.theta, feats.weight,
-                             pose.inplane, pose.scale, *pose.position)
-        value[k] = float(score) * edge_share(pose, model, maps, selected, setup,
-                                             features=feats)
+    scales = hypothesis.scale * np.exp(steps)
+    value = np.array([gather_score(maps.density, maps.frame, feats.xy, feats.theta, feats.weight,
+                                   hypothesis.inplane, scale, *hypothesis.position)
+                      for scale in scales.tolist()], dtype=np.float64)
+    value *= edge_shares(hypothesis, model, maps, selected, setup, scales, features=feats)
     best = int(np.argmax(value))
     if not value[best] > 0:
         return hypothesis
