@@ -9,13 +9,16 @@ true viewpoint; in clutter, where the found viewpoint is a few degrees off,
 about 2%). The other direction, the share of the test edges near the object
 that the pose's features explain (:func:`edge_share`), leans the other way:
 a pose drawn in leaves the object's outline unexplained.
-:func:`share_scale` takes the scale where the product of the two peaks.
+:func:`share_scale` takes the scale where the product of the two peaks
+(with the ``cluttered`` preset; docs/DEFAULTS.md, "Scale from both
+directions", has the measurements).
 """
 
 from __future__ import annotations
 
 from dataclasses import replace
 
+import numba
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -25,12 +28,7 @@ from posevote.inference.maps import TestMaps
 from posevote.inference.search import SearchSetup, ViewpointFeatures, viewpoint_features
 from posevote.inference.voting import gather_score
 from posevote.model.density import PoseModel
-from posevote.model.kernels import (
-    K1_CUTOFF,
-    ORIENTATION_KAPPA,
-    orientation_kernel,
-    position_kernel,
-)
+from posevote.model.kernels import K1_CUTOFF, ORIENTATION_KAPPA, orientation_kernel
 from posevote.model.outline import box_outline, inside_outline, outline_at
 from posevote.refinement.local import polish_pose
 from posevote.results import Hypothesis
@@ -74,6 +72,33 @@ def _pairs(a: NDArray[np.float64], b: NDArray[np.float64], radius: float
 
     pairs = cKDTree(a).sparse_distance_matrix(cKDTree(b), radius, output_type="ndarray")
     return pairs["i"].astype(np.intp), pairs["j"].astype(np.intp)
+
+
+@numba.njit(cache=True, nogil=True)
+def _densities(at_xy, xy, i, j, turn, scales, sigma, reach, n, scale_both
+               ):  # pragma: no cover - compiled
+    """Each scale's density at the points ``at_xy`` of the features ``scale * xy``.
+
+    Summed over the given pairs ``(i, j)`` (``turn``: their orientation
+    kernel) that lie within ``reach``; ``scale_both`` scales ``at_xy`` too.
+    Shape ``(len(scales), n)``.
+    """
+    out = np.zeros((len(scales), n))
+    limit = reach * reach
+    inverse = 1.0 / (2.0 * sigma * sigma)
+    for p in range(len(i)):
+        ax, ay = at_xy[i[p], 0], at_xy[i[p], 1]
+        bx, by = xy[j[p], 0], xy[j[p], 1]
+        for k in range(len(scales)):
+            s = scales[k]
+            if scale_both:
+                dx, dy = s * (ax - bx), s * (ay - by)
+            else:
+                dx, dy = ax - s * bx, ay - s * by
+            sq = dx * dx + dy * dy
+            if sq <= limit:
+                out[k, i[p]] += np.exp(-sq * inverse) * turn[p]
+    return out
 
 
 def edge_shares(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps,
@@ -124,27 +149,17 @@ def edge_shares(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps,
     drift = float(np.max(np.abs(scales - middle))) * float(np.max(np.linalg.norm(xy, axis=1)))
     ti, tj = _pairs(test_xy, middle * xy, reach + drift)
     test_turn = orientation_kernel(maps.theta[selected][ti] - theta[tj], ORIENTATION_KAPPA)
-    # |t - s m|^2 = |t|^2 - 2 s t.m + s^2 |m|^2: three terms per pair, once.
-    t_sq = np.sum(test_xy[ti] ** 2, axis=1)
-    t_dot_m = np.sum(test_xy[ti] * xy[tj], axis=1)
-    m_sq = np.sum(xy[tj] ** 2, axis=1)
+    density = _densities(test_xy, xy, ti, tj, test_turn, scales, sigma, reach, len(test_xy),
+                         False)
     # Its typical density on itself (a pooled model stacks several views on each
     # contour): its distances scale with it.
     own = np.arange(0, len(xy), max(1, len(xy) // _TYPICAL_POINTS))
     oi, oj = _pairs(xy[own], xy, reach / float(scales.min()))
     own_turn = orientation_kernel(theta[own][oi] - theta[oj], ORIENTATION_KAPPA)
-    own_sq = np.sum((xy[own][oi] - xy[oj]) ** 2, axis=1)
-    for k, scale in enumerate(scales.tolist()):
-        sq = np.maximum(t_sq - 2.0 * scale * t_dot_m + scale * scale * m_sq, 0.0)
-        near = sq <= reach * reach
-        density = np.bincount(ti[near], weights=position_kernel(sq[near], sigma) * test_turn[near],
-                              minlength=len(test_xy))
-        own_near = scale * scale * own_sq <= reach * reach
-        typical = float(np.median(np.bincount(
-            oi[own_near], weights=position_kernel(scale * scale * own_sq[own_near], sigma)
-            * own_turn[own_near], minlength=len(own))))
-        if typical > 0:
-            shares[k] = float(np.mean(np.minimum(density / typical, 1.0)))
+    typical = np.median(_densities(xy[own], xy, oi, oj, own_turn, scales, sigma, reach,
+                                   len(own), True), axis=1)
+    for k in np.flatnonzero(typical > 0):
+        shares[k] = float(np.mean(np.minimum(density[k] / typical[k], 1.0)))
     return shares
 
 
