@@ -192,11 +192,11 @@ def share_scale(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps,
     Parameters
     ----------
     hypothesis : Hypothesis
-        The refined pose (image pixels).
+        The pose whose scale is set, in image pixels (after the half-turn check).
     model : PoseModel
     maps : TestMaps
-        The test image's narrow maps in image pixels
-        (:func:`posevote.inference.search.image_maps`).
+        Narrow maps of the whole test image, in its pixels, as
+        :func:`posevote.inference.search.image_maps` makes them.
     setup : SearchSetup
 
     Returns
