@@ -122,10 +122,9 @@ def median_spacing_reference(xy: NDArray[np.float64]) -> float:
 
 
 @numba.njit(cache=True, nogil=True)
-def _explained_sums(xy, theta, strength, test_xy, test_theta, order, sigma, kappa
+def _explained_sums(xy, theta, strength, test_xy, test_theta, order, sigma, kappa, reach
                     ):  # pragma: no cover - compiled
     """:func:`explained_sums` over the test points sorted by x (``order``)."""
-    reach = 3.0 * sigma
     n = test_xy.shape[0]
     sorted_x = np.empty(n)
     for k in range(n):
@@ -153,12 +152,13 @@ def _explained_sums(xy, theta, strength, test_xy, test_theta, order, sigma, kapp
 
 def explained_sums(xy: NDArray[np.float64], theta: NDArray[np.float64],
                    strength: NDArray[np.float64], test_xy: NDArray[np.float64],
-                   test_theta: NDArray[np.float64], sigma: float, kappa: float
-                   ) -> NDArray[np.float64]:
-    """For each test point, the model points' kernel sum within 3 sigma (Eq. 5's terms).
+                   test_theta: NDArray[np.float64], sigma: float, kappa: float, *,
+                   reach_sigmas: float = 3.0) -> NDArray[np.float64]:
+    """For each test point, the model points' kernel sum within reach (Eq. 5's terms).
 
     ``strength[i] * exp(-d^2 / 2 sigma^2) * exp(kappa (cos 2 dtheta - 1))``
-    summed over the model points ``i`` within ``3 sigma`` of the test point.
+    summed over the model points ``i`` within ``reach_sigmas * sigma`` of the
+    test point (3 for Eq. 5).
     """
     f64 = np.float64
     test_xy = np.ascontiguousarray(test_xy, dtype=f64)
@@ -167,7 +167,7 @@ def explained_sums(xy: NDArray[np.float64], theta: NDArray[np.float64],
                            np.ascontiguousarray(theta, dtype=f64),
                            np.ascontiguousarray(strength, dtype=f64), test_xy,
                            np.ascontiguousarray(test_theta, dtype=f64), order, float(sigma),
-                           float(kappa))
+                           float(kappa), float(reach_sigmas) * float(sigma))
 
 
 def explained_sums_reference(xy: NDArray[np.float64], theta: NDArray[np.float64],

@@ -18,17 +18,17 @@ from __future__ import annotations
 
 from dataclasses import replace
 
-import numba
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from posevote.geometry import rotate_points
 from posevote.inference.coverage import MIN_BOX_EDGES
 from posevote.inference.maps import TestMaps
+from posevote.inference.recognition import explained_sums
 from posevote.inference.search import SearchSetup, ViewpointFeatures, viewpoint_features
 from posevote.inference.voting import gather_score
 from posevote.model.density import PoseModel
-from posevote.model.kernels import K1_CUTOFF, ORIENTATION_KAPPA, orientation_kernel
+from posevote.model.kernels import K1_CUTOFF, ORIENTATION_KAPPA
 from posevote.model.outline import box_outline, inside_outline, outline_at
 from posevote.refinement.local import polish_pose
 from posevote.results import Hypothesis
@@ -65,42 +65,6 @@ def inside_pose(hypothesis: Hypothesis, model: PoseModel, points: NDArray[np.flo
                           hypothesis.inplane)
 
 
-def _pairs(a: NDArray[np.float64], b: NDArray[np.float64], radius: float
-           ) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
-    """The index pairs ``(i, j)`` of the points ``a[i]``, ``b[j]`` within ``radius``."""
-    from scipy.spatial import cKDTree
-
-    pairs = cKDTree(a).sparse_distance_matrix(cKDTree(b), radius, output_type="ndarray")
-    return pairs["i"].astype(np.intp), pairs["j"].astype(np.intp)
-
-
-@numba.njit(cache=True, nogil=True)
-def _densities(at_xy, xy, i, j, turn, scales, sigma, reach, n, scale_both
-               ):  # pragma: no cover - compiled
-    """Each scale's density at the points ``at_xy`` of the features ``scale * xy``.
-
-    Summed over the given pairs ``(i, j)`` (``turn``: their orientation
-    kernel) that lie within ``reach``; ``scale_both`` scales ``at_xy`` too.
-    Shape ``(len(scales), n)``.
-    """
-    out = np.zeros((len(scales), n))
-    limit = reach * reach
-    inverse = 1.0 / (2.0 * sigma * sigma)
-    for p in range(len(i)):
-        ax, ay = at_xy[i[p], 0], at_xy[i[p], 1]
-        bx, by = xy[j[p], 0], xy[j[p], 1]
-        for k in range(len(scales)):
-            s = scales[k]
-            if scale_both:
-                dx, dy = s * (ax - bx), s * (ay - by)
-            else:
-                dx, dy = ax - s * bx, ay - s * by
-            sq = dx * dx + dy * dy
-            if sq <= limit:
-                out[k, i[p]] += np.exp(-sq * inverse) * turn[p]
-    return out
-
-
 def edge_shares(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps,
                 selected: NDArray[np.bool_], setup: SearchSetup, scales: ArrayLike, *,
                 features: ViewpointFeatures | None = None) -> NDArray[np.float64]:
@@ -109,9 +73,9 @@ def edge_shares(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps,
     As :func:`posevote.inference.coverage.coverage` reads it (the placed
     model's density at each test edge over its typical density on its own
     features, capped at 1, averaged), but summed exactly over the pairs of
-    edges within :data:`_REACH_SIGMAS` kernel widths rather than read from a
-    grid: the decisions that use it turn on a few percent. The pairs are
-    found once for every scale.
+    edges within :data:`_REACH_SIGMAS` kernel widths
+    (:func:`posevote.inference.recognition.explained_sums`) rather than read
+    from a grid: the decisions that use it turn on a few percent.
 
     Parameters
     ----------
@@ -140,26 +104,23 @@ def edge_shares(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps,
     if selected.sum() < MIN_BOX_EDGES or len(feats.xy) == 0 or len(scales) == 0:
         return shares
     sigma = float(maps.position_sigma)
-    reach = _REACH_SIGMAS * sigma
     xy = rotate_points(feats.xy, hypothesis.inplane)
     theta = np.mod(feats.theta + hypothesis.inplane, np.pi)
     test_xy = maps.xy[selected] - np.asarray(hypothesis.position, dtype=np.float64)
-    # The test edges near the model at a middle scale, far enough for every scale.
-    middle = float(np.sqrt(scales.min() * scales.max()))
-    drift = float(np.max(np.abs(scales - middle))) * float(np.max(np.linalg.norm(xy, axis=1)))
-    ti, tj = _pairs(test_xy, middle * xy, reach + drift)
-    test_turn = orientation_kernel(maps.theta[selected][ti] - theta[tj], ORIENTATION_KAPPA)
-    density = _densities(test_xy, xy, ti, tj, test_turn, scales, sigma, reach, len(test_xy),
-                         False)
+    test_theta = maps.theta[selected]
+    ones = np.ones(len(xy))
     # Its typical density on itself (a pooled model stacks several views on each
-    # contour): its distances scale with it.
+    # contour), read at evenly spaced features of its own.
     own = np.arange(0, len(xy), max(1, len(xy) // _TYPICAL_POINTS))
-    oi, oj = _pairs(xy[own], xy, reach / float(scales.min()))
-    own_turn = orientation_kernel(theta[own][oi] - theta[oj], ORIENTATION_KAPPA)
-    typical = np.median(_densities(xy[own], xy, oi, oj, own_turn, scales, sigma, reach,
-                                   len(own), True), axis=1)
-    for k in np.flatnonzero(typical > 0):
-        shares[k] = float(np.mean(np.minimum(density[k] / typical[k], 1.0)))
+    for k, scale in enumerate(scales.tolist()):
+        placed = scale * xy
+        typical = float(np.median(explained_sums(placed, theta, ones, placed[own], theta[own],
+                                                 sigma, ORIENTATION_KAPPA,
+                                                 reach_sigmas=_REACH_SIGMAS)))
+        if typical > 0:
+            density = explained_sums(placed, theta, ones, test_xy, test_theta, sigma,
+                                     ORIENTATION_KAPPA, reach_sigmas=_REACH_SIGMAS)
+            shares[k] = float(np.mean(np.minimum(density / typical, 1.0)))
     return shares
 
 
