@@ -434,7 +434,7 @@ def test_a_turned_pose_keeps_the_found_pose_as_the_next_mode(synthetic_training,
     found = est.estimate(img).best
     calls = []
 
-    def turn(hypothesis, *args):
+    def turn(hypothesis, *args, **kwargs):
         calls.append(hypothesis)
         return replace(hypothesis, azimuth=float(np.mod(hypothesis.azimuth + np.pi, 2 * np.pi)))
 

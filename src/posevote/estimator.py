@@ -384,7 +384,8 @@ class PoseEstimator(GroupedParams):
                 pixel_maps = image_maps(feats, shape, setup)
                 # A plainer side over the other explains itself as fully: the
                 # image's own edges decide (measured with the templates).
-                turned = half_turn(hyps[0], model, pixel_maps, setup, correlate)
+                turned = half_turn(hyps[0], model, pixel_maps, setup, correlate,
+                                   features=feats, shape=shape)
                 if turned is not hyps[0]:
                     # The search's profile still favours the found pose's side: it
                     # stays, as the next mode, with the probability of its side.

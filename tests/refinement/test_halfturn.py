@@ -36,8 +36,11 @@ def _pose(azimuth, scale, position=(80.0, 80.0)):
                                               side, side), score=1.0, refined=True)
 
 
-def _maps(view):
-    return image_maps(EdgeFeatures(xy=view.xy + 80.0, theta=view.theta), (160, 160), _SETUP)
+def _turn(pose, model, view, correlate=None):
+    """``half_turn`` of ``pose`` in an image that shows ``view`` at (80, 80)."""
+    feats = EdgeFeatures(xy=view.xy + 80.0, theta=view.theta)
+    return half_turn(pose, model, image_maps(feats, (160, 160), _SETUP), _SETUP,
+                     correlate or _flat, features=feats, shape=(160, 160))
 
 
 def _flat(poses):
@@ -45,7 +48,7 @@ def _flat(poses):
 
 
 def test_the_plain_back_over_the_face_turns_to_the_face(sides):
-    found = half_turn(_pose(np.pi, _BACK), _model(sides), _maps(sides[0]), _SETUP, _flat)
+    found = _turn(_pose(np.pi, _BACK), _model(sides), sides[0])
     assert found.azimuth == pytest.approx(0.0, abs=1e-9)
     assert found.scale == pytest.approx(1.0, abs=0.03)
     assert np.allclose(found.position, (80.0, 80.0), atol=1.0)
@@ -54,10 +57,10 @@ def test_the_plain_back_over_the_face_turns_to_the_face(sides):
 def test_the_right_pose_stays(sides):
     model = _model(sides)
     face = _pose(0.0, 1.0)
-    assert half_turn(face, model, _maps(sides[0]), _SETUP, _flat) is face
+    assert _turn(face, model, sides[0]) is face
     # The back seen from behind: the face's cross finds nothing there.
     back = _pose(np.pi, 1.0)
-    assert half_turn(back, model, _maps(sides[1]), _SETUP, _flat) is back
+    assert _turn(back, model, sides[1]) is back
 
 
 def test_the_correlation_weighs_in(sides):
@@ -66,4 +69,4 @@ def test_the_correlation_weighs_in(sides):
         return np.array([0.2 if abs(p.azimuth) < 1.0 else 1.0 for p in poses])
 
     back = _pose(np.pi, _BACK)
-    assert half_turn(back, _model(sides), _maps(sides[0]), _SETUP, against_the_face) is back
+    assert _turn(back, _model(sides), sides[0], against_the_face) is back

@@ -13,6 +13,7 @@ from posevote.refinement.local import (
     probe_pose,
     profile_refine,
     rescale_mode,
+    unit_score,
 )
 
 
@@ -275,3 +276,52 @@ def test_rescale_anchor_weighs_each_scale_by_its_correlation(synthetic_training,
     weighed, s2 = rescale_anchor(*args, correlate=correlate)
     assert seen == [len(probes.scale)] and s2 != s
     assert rescale_anchor(*args, correlate=lambda hyps: np.ones(len(hyps)))[1] == s
+
+
+def _square_scene(line_drawing, scale, position=(90.0, 90.0)):
+    """A one-view model of a square with a cross, the view drawn at ``scale``, and a pose."""
+    from posevote.features.edges import EdgeFeatures
+    from posevote.inference.search import SearchSetup
+    from posevote.model.density import build_model
+    from posevote.results import Hypothesis
+
+    segments, square = line_drawing
+    view = segments(square(20.0) + [([-12.0, 0.0], [12.0, 0.0]), ([0.0, -12.0], [0.0, 12.0])])
+    model = build_model([EdgeFeatures(xy=view.xy + 50.0, theta=view.theta)],
+                        poses=np.zeros((1, 3)), centers=np.full((1, 2), 50.0), scales=np.ones(1),
+                        box_sizes=np.array([[40.0, 40.0]]), instances=[0],
+                        instance_names=["toy"], reference_size=40.0)
+    drawn = segments([(np.asarray(a) * scale, np.asarray(b) * scale) for a, b in
+                      square(20.0) + [([-12.0, 0.0], [12.0, 0.0]), ([0.0, -12.0], [0.0, 12.0])]],
+                     step=2.0)
+    feats = EdgeFeatures(xy=drawn.xy + 90.0, theta=drawn.theta)
+    setup = SearchSetup(options=SearchOptions(), position_sigma=2.0, edge_spacing=2.0,
+                        viewpoint_kappa=10.0)
+    side = 40.0 * scale
+    pose = Hypothesis(azimuth=0.0, elevation=0.0, inplane=0.0, scale=scale, position=position,
+                      box=(position[0] - side / 2, position[1] - side / 2, side, side),
+                      score=1.0, refined=True)
+    return model, feats, setup, pose
+
+
+def test_unit_score_is_zero_on_clutter_at_every_scale(line_drawing):
+    # Random edges explain a model only by chance, at any scale: above chance, 0.
+    from posevote.features.edges import EdgeFeatures
+
+    rng = np.random.default_rng(0)
+    clutter = EdgeFeatures(xy=rng.uniform(0.0, 180.0, (3000, 2)),
+                           theta=rng.uniform(0.0, np.pi, 3000))
+    for scale in (0.7, 1.4):
+        model, feats, setup, pose = _square_scene(line_drawing, scale)
+        on = unit_score(pose, model, feats, (180, 180), setup)
+        chance = [unit_score(replace(pose, position=tuple(rng.uniform(50.0, 130.0, 2))), model,
+                             clutter, (180, 180), setup) for _ in range(20)]
+        assert abs(np.mean(chance)) < 0.03
+        assert on > 0.7
+
+
+def test_unit_score_falls_off_the_object(line_drawing):
+    model, feats, setup, pose = _square_scene(line_drawing, 1.0)
+    on = unit_score(pose, model, feats, (180, 180), setup)
+    off = unit_score(replace(pose, position=(30.0, 30.0)), model, feats, (180, 180), setup)
+    assert off < 0.1 < on

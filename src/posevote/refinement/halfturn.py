@@ -14,9 +14,12 @@ explain (:func:`~posevote.refinement.share.edge_share`).
 :func:`half_turn` polishes the found pose's half-turn (azimuth plus 180
 degrees, the elevation kept) from :data:`HALF_TURN_SCALES` times its scale,
 keeps the polish whose narrow score times template correlation is highest,
-and scores it and the found pose (polished on the same maps) by that product
-times their share of the test edges. The half-turn replaces the found pose
-where it scores higher. It runs with the template re-ranking and the local
+and scores it and the found pose (polished on the same maps) by their narrow
+score above chance with the kernel in object units at each one's own scale
+(:func:`~posevote.refinement.local.unit_score`: the side shrunk onto the
+other's inner edges gains nothing from its size) times their correlation and
+their share of the test edges. The half-turn replaces the found pose where
+it scores higher. It runs with the template re-ranking and the local
 refinement (the ``cluttered`` preset); docs/DEFAULTS.md, "Half-turn check",
 has the measurements.
 """
@@ -30,12 +33,13 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from posevote.features.edges import EdgeFeatures
 from posevote.inference.maps import TestMaps
 from posevote.inference.search import SearchSetup
 from posevote.inference.templates import CORRELATION_FLOOR
 from posevote.model.density import PoseModel
 from posevote.model.kernels import K1_CUTOFF
-from posevote.refinement.local import polish_pose
+from posevote.refinement.local import polish_pose, unit_score
 from posevote.refinement.share import edge_share, inside_pose, pose_features
 from posevote.results import Hypothesis
 
@@ -45,7 +49,8 @@ HALF_TURN_SCALES = (0.85, 1.0, 1 / 0.85)
 
 
 def half_turn(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps, setup: SearchSetup,
-              correlate: Callable[[list[Hypothesis]], NDArray[np.float64]]) -> Hypothesis:
+              correlate: Callable[[list[Hypothesis]], NDArray[np.float64]], *,
+              features: EdgeFeatures, shape: tuple[int, int]) -> Hypothesis:
     """The found pose, or its half-turn where that explains the image better.
 
     Parameters
@@ -60,6 +65,10 @@ def half_turn(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps, setup: S
     correlate : callable
         Each pose's correlation with the object's grey levels
         (:func:`posevote.inference.templates.pose_correlations`).
+    features : EdgeFeatures
+        The test features, image pixels (the two poses' scores in object units).
+    shape : (int, int)
+        The image's shape.
 
     Returns
     -------
@@ -80,16 +89,23 @@ def half_turn(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps, setup: S
     other = poses[best]
     if not product[best] > 0:
         return hypothesis
+    # The side that fits shrunk onto inner edges scores high in pixels; above
+    # chance in object units each pose is judged at its own size.
+    found_value, other_value = (unit_score(h, model, features, shape, setup)
+                                * max(float(c), CORRELATION_FLOOR)
+                                for h, c in zip((found, other), correlate([found, other])))
+    if not other_value > 0:
+        return hypothesis
     found_feats = pose_features(found, model, setup)
     other_feats = pose_features(other, model, setup)
     # The edges inside either outline: the object's, wherever either pose puts it.
     selected = (inside_pose(found, model, maps.xy, setup, found_feats)
                 | inside_pose(other, model, maps.xy, setup, other_feats))
     share = edge_share(found, model, maps, selected, setup, features=found_feats)
-    # A share is at most 1: the half-turn cannot win unless its product beats this.
-    if product[best] <= product[0] * share:
+    # A share is at most 1: the half-turn cannot win unless its value beats this.
+    if other_value <= found_value * share:
         return hypothesis
-    if product[best] * edge_share(other, model, maps, selected, setup,
-                                  features=other_feats) > product[0] * share:
+    if other_value * edge_share(other, model, maps, selected, setup,
+                                features=other_feats) > found_value * share:
         return replace(other, score=float(product[best]), refined=True)
     return hypothesis

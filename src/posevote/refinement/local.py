@@ -337,8 +337,7 @@ def rescale_anchor(probes: ProbeSet, viewpoint: int, model: PoseModel,
         maps = image_maps(scaled, (h, w), setup, scale=factor, region=region)
         polished = polish_pose(start, model, maps, **kw,
                                scale_bounds=(float(np.exp(-half)), float(np.exp(half))))
-        chance = min(maps.chance, 0.99)
-        found.append(((polished.score - chance) / (1.0 - chance),
+        found.append((above_chance(polished.score, maps),
                       replace(in_frame(polished, 1.0 / factor), score=probe.score), s))
     if not found:
         return None
@@ -348,6 +347,50 @@ def rescale_anchor(probes: ProbeSet, viewpoint: int, model: PoseModel,
         value = np.where(value > 0, value * factor, value)
     best = found[int(np.argmax(value))]
     return best[1], best[2]
+
+
+def above_chance(score: float, maps: TestMaps) -> float:
+    """A narrow score as the share of the way from the maps' chance level to 1."""
+    chance = min(maps.chance, 0.99)
+    return (score - chance) / (1.0 - chance)
+
+
+def unit_score(hypothesis: Hypothesis, model: PoseModel, features: EdgeFeatures,
+               shape: tuple[int, int], setup: SearchSetup) -> float:
+    """A pose's narrow score above chance, the kernel in object units at its own scale.
+
+    As :func:`rescale_anchor` scores each scale, for a pose as it stands (no
+    polish): poses of different scales then compare without the small one's
+    advantage of a kernel relatively wider and more clutter per feature.
+
+    Parameters
+    ----------
+    hypothesis : Hypothesis
+        The pose (image pixels).
+    model : PoseModel
+    features : EdgeFeatures
+        The test features, image pixels.
+    shape : (int, int)
+        The image's shape.
+    setup : SearchSetup
+
+    Returns
+    -------
+    float
+        At most 1; below 0 where the pose explains less than chance does.
+    """
+    kw = _score_options(setup)
+    factor = hypothesis.scale
+    feats = viewpoint_features(model, hypothesis.azimuth, hypothesis.elevation, **kw)
+    # The maps are tabulated only where the pose's features land (and the read's pixel).
+    reach = float(np.sqrt(np.max(np.sum(feats.xy**2, axis=1), initial=0.0))) + 2.0
+    scaled, (h, w) = scaled_features(features, shape, factor)
+    pose = in_frame(hypothesis, factor)
+    u, v = np.clip(pose.position, 0.0, (w - 1, h - 1))
+    region = (int(np.floor(u - reach)), int(np.floor(v - reach)),
+              int(np.ceil(u + reach)), int(np.ceil(v + reach)))
+    maps = image_maps(scaled, (h, w), setup, scale=factor, region=region)
+    return above_chance(pose_score(pose, model, maps, **kw), maps)
 
 
 def _weights(correlate: Callable[[list[Hypothesis]], NDArray[np.float64]],
