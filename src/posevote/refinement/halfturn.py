@@ -83,17 +83,16 @@ def half_turn(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps, setup: S
     candidates = [polish_pose(replace(hypothesis, azimuth=turned, scale=hypothesis.scale * f),
                               model, maps, **opts) for f in HALF_TURN_SCALES]
     poses = [found, *candidates]
-    product = np.array([h.score for h in poses]) * np.maximum(correlate(poses),
-                                                              CORRELATION_FLOOR)
+    weight = np.maximum(correlate(poses), CORRELATION_FLOOR)
+    product = np.array([h.score for h in poses]) * weight
     best = 1 + int(np.argmax(product[1:]))
     other = poses[best]
     if not product[best] > 0:
         return hypothesis
     # The side that fits shrunk onto inner edges scores high in pixels; above
     # chance in object units each pose is judged at its own size.
-    found_value, other_value = (unit_score(h, model, features, shape, setup)
-                                * max(float(c), CORRELATION_FLOOR)
-                                for h, c in zip((found, other), correlate([found, other])))
+    found_value = unit_score(found, model, features, shape, setup) * float(weight[0])
+    other_value = unit_score(other, model, features, shape, setup) * float(weight[best])
     if not other_value > 0:
         return hypothesis
     found_feats = pose_features(found, model, setup)
