@@ -286,14 +286,14 @@ def _square_scene(line_drawing, scale, position=(90.0, 90.0)):
     from posevote.results import Hypothesis
 
     segments, square = line_drawing
-    view = segments(square(20.0) + [([-12.0, 0.0], [12.0, 0.0]), ([0.0, -12.0], [0.0, 12.0])])
+    lines = square(20.0) + [([-12.0, 0.0], [12.0, 0.0]), ([0.0, -12.0], [0.0, 12.0])]
+    view = segments(lines)
     model = build_model([EdgeFeatures(xy=view.xy + 50.0, theta=view.theta)],
                         poses=np.zeros((1, 3)), centers=np.full((1, 2), 50.0), scales=np.ones(1),
                         box_sizes=np.array([[40.0, 40.0]]), instances=[0],
                         instance_names=["toy"], reference_size=40.0)
-    drawn = segments([(np.asarray(a) * scale, np.asarray(b) * scale) for a, b in
-                      square(20.0) + [([-12.0, 0.0], [12.0, 0.0]), ([0.0, -12.0], [0.0, 12.0])]],
-                     step=2.0)
+    # Edge points 2 px apart in the image at any scale, as extracted.
+    drawn = segments([(np.asarray(a) * scale, np.asarray(b) * scale) for a, b in lines])
     feats = EdgeFeatures(xy=drawn.xy + 90.0, theta=drawn.theta)
     setup = SearchSetup(options=SearchOptions(), position_sigma=2.0, edge_spacing=2.0,
                         viewpoint_kappa=10.0)
