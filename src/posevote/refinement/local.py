@@ -329,12 +329,7 @@ def rescale_anchor(probes: ProbeSet, viewpoint: int, model: PoseModel,
             continue
         probe = probe_pose(probes, viewpoint, a, s)
         start = in_frame(probe, factor)
-        scaled, (h, w) = scaled_features(features, shape, factor)
-        # Clamped to meet the image: a polish that reads only past it scores 0 either way.
-        u, v = np.clip(start.position, 0.0, (w - 1, h - 1))
-        region = (int(np.floor(u - reach)), int(np.floor(v - reach)),
-                  int(np.ceil(u + reach)), int(np.ceil(v + reach)))
-        maps = image_maps(scaled, (h, w), setup, scale=factor, region=region)
+        maps = maps_around(features, shape, setup, factor, start.position, reach)
         polished = polish_pose(start, model, maps, **kw,
                                scale_bounds=(float(np.exp(-half)), float(np.exp(half))))
         found.append((above_chance(polished.score, maps),
@@ -384,13 +379,22 @@ def unit_score(hypothesis: Hypothesis, model: PoseModel, features: EdgeFeatures,
     feats = viewpoint_features(model, hypothesis.azimuth, hypothesis.elevation, **kw)
     # The maps are tabulated only where the pose's features land (and the read's pixel).
     reach = float(np.sqrt(np.max(np.sum(feats.xy**2, axis=1), initial=0.0))) + 2.0
-    scaled, (h, w) = scaled_features(features, shape, factor)
     pose = in_frame(hypothesis, factor)
-    u, v = np.clip(pose.position, 0.0, (w - 1, h - 1))
+    maps = maps_around(features, shape, setup, factor, pose.position, reach)
+    return above_chance(pose_score(pose, model, maps, **kw), maps)
+
+
+def maps_around(features: EdgeFeatures, shape: tuple[int, int], setup: SearchSetup,
+                factor: float, position: tuple[float, float], reach: float) -> TestMaps:
+    """Narrow maps of the test image divided by ``factor`` (object units at that scale),
+    tabulated within ``reach`` of ``position`` (in that frame), with the whole image's
+    values and chance level."""
+    scaled, (h, w) = scaled_features(features, shape, factor)
+    # Clamped to meet the image: a pose that reads only past it scores 0 either way.
+    u, v = np.clip(position, 0.0, (w - 1, h - 1))
     region = (int(np.floor(u - reach)), int(np.floor(v - reach)),
               int(np.ceil(u + reach)), int(np.ceil(v + reach)))
-    maps = image_maps(scaled, (h, w), setup, scale=factor, region=region)
-    return above_chance(pose_score(pose, model, maps, **kw), maps)
+    return image_maps(scaled, (h, w), setup, scale=factor, region=region)
 
 
 def _weights(correlate: Callable[[list[Hypothesis]], NDArray[np.float64]],
