@@ -429,8 +429,6 @@ def test_a_turned_pose_keeps_the_found_pose_as_the_next_mode(synthetic_training,
     import posevote.estimator as estimator_module
 
     images, az, boxes = synthetic_training
-    # The half-turn's bookkeeping alone: the viewpoint polish after it held still.
-    monkeypatch.setattr(estimator_module, "polish_viewpoint", lambda hypothesis, *a: hypothesis)
     est = PoseEstimator.from_preset("cluttered", max_modes=2).fit(images, az, boxes=boxes)
     img = draw(np.radians(50.0), scale=0.9, centre=(66.0, 62.0))
     found = est.estimate(img).best

@@ -48,7 +48,7 @@ from posevote.refinement.appearance import appearance_refine
 from posevote.refinement.fitting import FIT_RADIUS_STEPS, find_modes, refine_mode
 from posevote.refinement.halfturn import half_turn
 from posevote.refinement.instance import RecognitionOptions, recognize
-from posevote.refinement.local import local_refine, polish_viewpoint, rescale_mode
+from posevote.refinement.local import local_refine, rescale_mode
 from posevote.refinement.probability import scored_viewpoints, with_probabilities
 from posevote.refinement.share import share_scale
 from posevote.results import Hypothesis, PoseEstimate
@@ -390,9 +390,6 @@ class PoseEstimator(GroupedParams):
                     # The search's profile still favours the found pose's side: it
                     # stays, as the next mode, with the probability of its side.
                     hyps = [turned, *hyps][:self.max_modes]
-                # The profile's viewpoint lies on the probed grid's scale; the
-                # score between its viewpoints sets it finer (and the scale with it).
-                hyps[0] = polish_viewpoint(hyps[0], model, pixel_maps, setup, correlate)
                 # The narrow score draws the outline in onto the object's inner
                 # edges; the image's edges explained too set the scale.
                 hyps[0] = share_scale(hyps[0], model, pixel_maps, setup)

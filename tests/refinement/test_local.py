@@ -10,7 +10,6 @@ from posevote.refinement import find_modes, polish_pose, refine_mode
 from posevote.refinement.local import (
     in_frame,
     local_refine,
-    polish_viewpoint,
     probe_pose,
     profile_refine,
     rescale_mode,
@@ -326,27 +325,3 @@ def test_unit_score_falls_off_the_object(line_drawing):
     on = unit_score(pose, model, feats, (180, 180), setup)
     off = unit_score(replace(pose, position=(30.0, 30.0)), model, feats, (180, 180), setup)
     assert off < 0.1 < on
-
-
-def test_polish_viewpoint_moves_toward_the_drawn_view(scene):
-    # The scene is drawn at 60 degrees; started 9 degrees off, the azimuth moves back.
-    est, probes, fine, _ = scene
-    start = refine_mode(probes, find_modes(probes)[0], fit=False)
-    off = replace(start, azimuth=float(np.radians(69.0)))
-    moved = polish_viewpoint(off, est.model_, fine, est.setup(), lambda hyps: np.ones(len(hyps)))
-    assert abs(np.degrees(moved.azimuth) - 60.0) < 5.0
-    # The score stays the caller's; the elevation stays on a one-elevation model.
-    assert moved.score == off.score and moved.elevation == off.elevation and moved.refined
-
-
-def test_polish_viewpoint_weighs_by_the_correlation(scene):
-    # Grey levels that only match the starting viewpoint hold the pose there.
-    est, probes, fine, _ = scene
-    start = refine_mode(probes, find_modes(probes)[0], fit=False)
-    off = replace(start, azimuth=float(np.radians(69.0)))
-
-    def only_there(hyps):
-        return np.array([1.0 if abs(h.azimuth - off.azimuth) < 1e-9 else 0.0 for h in hyps])
-
-    held = polish_viewpoint(off, est.model_, fine, est.setup(), only_there)
-    assert held.azimuth == pytest.approx(off.azimuth)

@@ -344,63 +344,6 @@ def rescale_anchor(probes: ProbeSet, viewpoint: int, model: PoseModel,
     return best[1], best[2]
 
 
-#: The viewpoint polish's compass steps (radians) and the most moves at each: about
-#: the sphere's training views' spacing, then half of it (docs/DEFAULTS.md).
-VIEWPOINT_STEPS = (float(np.radians(6.0)), float(np.radians(3.0)))
-VIEWPOINT_MOVES = 3
-
-
-def polish_viewpoint(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps,
-                     setup: SearchSetup,
-                     correlate: Callable[[list[Hypothesis]], NDArray[np.float64]]
-                     ) -> Hypothesis:
-    """The pose moved over its viewpoint too, where that scores higher (beyond the paper).
-
-    A compass search over azimuth and elevation (elevation only where the
-    model's views span several): each step's pose is polished in in-plane
-    angle, scale and translation (:func:`polish_pose`) and scored by its
-    narrow score times its template correlation, as the local refinement's
-    profile scores its viewpoints; steps of :data:`VIEWPOINT_STEPS`, at most
-    :data:`VIEWPOINT_MOVES` moves each. The profile fit reads the viewpoint
-    from the probed grid's neighbours; this follows the score between them.
-
-    Parameters
-    ----------
-    hypothesis : Hypothesis
-        The refined pose (image pixels).
-    model : PoseModel
-    maps : TestMaps
-        The test image's narrow maps in image pixels.
-    setup : SearchSetup
-    correlate : callable
-        Each pose's correlation with the object's grey levels.
-
-    Returns
-    -------
-    Hypothesis
-        The best pose found, with ``hypothesis``'s score (the rejection
-        threshold reads it unchanged).
-    """
-    kw = _score_options(setup)
-    low, high = float(np.min(model.view_elevation)), float(np.max(model.view_elevation))
-    moves = [(1.0, 0.0), (-1.0, 0.0)] + ([(0.0, 1.0), (0.0, -1.0)] if high > low else [])
-    best = polish_pose(hypothesis, model, maps, **kw)
-    value = best.score * float(_weights(correlate, [best])[0])
-    for step in VIEWPOINT_STEPS:
-        for _ in range(VIEWPOINT_MOVES):
-            tried = [polish_pose(replace(best, azimuth=float(np.mod(best.azimuth + da * step,
-                                                                     2.0 * np.pi)),
-                                         elevation=float(np.clip(best.elevation + de * step,
-                                                                 low, high))),
-                                 model, maps, **kw) for da, de in moves]
-            values = np.array([h.score for h in tried]) * _weights(correlate, tried)
-            i = int(np.argmax(values))
-            if not values[i] > value:
-                break
-            best, value = tried[i], float(values[i])
-    return replace(best, score=hypothesis.score, refined=True)
-
-
 def above_chance(score: float, maps: TestMaps) -> float:
     """A narrow score as the share of the way from the maps' chance level to 1."""
     chance = min(maps.chance, 0.99)
