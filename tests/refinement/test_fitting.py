@@ -1,9 +1,10 @@
 import numpy as np
 import pytest
 
-from posevote.geometry import viewing_direction
+from posevote.geometry import angle_difference, viewing_direction
 from posevote.inference.search import ProbeSet
 from posevote.refinement import find_modes, refine_mode
+from posevote.refinement.fitting import peak_viewpoint
 
 
 def synthetic_probes(mu_az, mu_alpha=0.05, mu_scale=1.04, second=None, cusp=False):
@@ -169,3 +170,32 @@ def test_compiled_fit_refuses_non_finite_scores():
     y[3] = np.nan
     assert solve_fit(p0, lo, hi, X, y, layout, 1e-4) is None
     assert solve_fit_reference(p0, lo, hi, X, y, layout, 1e-4) is None
+
+
+def sphere_profile(mu_az, mu_el, width=np.radians(8.0), elevations=np.arange(-30, 61, 7.5)):
+    """A local refinement's profile over the sphere's training grid (one score a view),
+    falling off as a Gaussian in the angle from a viewpoint between the views."""
+    az, el = (np.radians(a).ravel() for a in np.meshgrid(np.arange(0, 360, 10.0), elevations))
+    angle = np.arccos(np.clip(viewing_direction(az, el) @ viewing_direction(mu_az, mu_el), -1, 1))
+    score = 0.1 + 0.8 * np.exp(-angle**2 / (2 * width**2))
+    return ProbeSet(azimuth=az, elevation=el, inplane=np.zeros(1), scale=np.ones(1),
+                    score=score[:, None, None], translation=np.zeros((len(az), 1, 1, 2)),
+                    box=np.full((len(az), 2), 30.0))
+
+
+@pytest.mark.parametrize("truth", [(43.0, 11.0), (357.0, -26.0), (121.0, 49.0)])
+def test_peak_viewpoint_reads_the_peak_between_views(truth):
+    probes = sphere_profile(*np.radians(truth))
+    az, el = peak_viewpoint(probes, int(np.argmax(probes.score[:, 0, 0])))
+    assert abs(angle_difference(np.degrees(az), truth[0], period=360.0)) < 1.0
+    assert np.degrees(el) == pytest.approx(truth[1], abs=1.0)
+
+
+def test_peak_viewpoint_needs_a_concave_profile_over_several_elevations():
+    probes = sphere_profile(np.radians(43.0), np.radians(11.0))
+    best = int(np.argmax(probes.score[:, 0, 0]))
+    valley = ProbeSet(**{**probes.__dict__, "score": -probes.score})
+    assert peak_viewpoint(valley, int(np.argmin(probes.score[:, 0, 0]))) is None
+    ring = sphere_profile(np.radians(43.0), 0.0, elevations=np.zeros(1))
+    assert peak_viewpoint(ring, int(np.argmax(ring.score[:, 0, 0]))) is None
+    assert peak_viewpoint(probes, best) is not None

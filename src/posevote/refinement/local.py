@@ -42,6 +42,7 @@ from posevote.refinement.fitting import (
     VIEW_SHAPE,
     box_from_pose,
     neighbour_viewpoints,
+    peak_viewpoint,
     refine_mode,
 )
 from posevote.results import Hypothesis
@@ -457,9 +458,11 @@ def profile_refine(probes: ProbeSet, viewpoint: int, model: PoseModel, maps: Tes
     (:func:`polish_pose`, started from that viewpoint's best probe on the
     mode's object, :func:`start_near`). The viewpoint distribution of
     Sec. II-B is then fitted to these maximised scores instead of the
-    grid's, and the pose is polished once more at the fitted viewpoint. The
-    grid's coarse steps and widened kernel then no longer blur the
-    comparison between viewpoints.
+    grid's (on a turntable; over the sphere the peak of a quadratic through
+    the best view and its nearest neighbours, :func:`peak_viewpoint`), and
+    the pose is polished once more at that viewpoint. The grid's coarse
+    steps and widened kernel then no longer blur the comparison between
+    viewpoints.
 
     Parameters
     ----------
@@ -472,7 +475,7 @@ def profile_refine(probes: ProbeSet, viewpoint: int, model: PoseModel, maps: Tes
     radius_steps : float, optional
         Viewpoints within this many probe spacings take part.
     view_shape : float, optional
-        Exponent of the fitted viewpoint term (:func:`refine_mode`).
+        Exponent of the fitted viewpoint term (:func:`refine_mode`, turntables).
     scale_margin : float or None, optional
         Every polish keeps the scale within a factor ``exp(scale_margin)``
         of the mode's best probe (None: only the polish's own step bound).
@@ -522,11 +525,17 @@ def profile_refine(probes: ProbeSet, viewpoint: int, model: PoseModel, maps: Tes
                        inplane=np.zeros(1), scale=np.ones(1), score=score[:, None, None],
                        translation=np.zeros((len(views), 1, 1, 2)), box=probes.box[views])
     best = int(np.argmax(score))
-    fitted = refine_mode(profile, best, radius_steps=radius_steps, view_shape=view_shape)
     seed = polished[best]
-    if not fitted.refined:
+    if profile.turntable:
+        fitted = refine_mode(profile, best, radius_steps=radius_steps, view_shape=view_shape)
+        peak = (fitted.azimuth, fitted.elevation) if fitted.refined else None
+    else:
+        # Over the sphere the views ring the best one unevenly: the peak is read
+        # from its nearest neighbours alone.
+        peak = peak_viewpoint(profile, best)
+    if peak is None:
         return replace(in_frame(seed, 1.0 / frame_scale), score=float(score[best]))
-    moved = replace(seed, azimuth=fitted.azimuth, elevation=fitted.elevation, refined=True)
+    moved = replace(seed, azimuth=peak[0], elevation=peak[1], refined=True)
     final = in_frame(polish_pose(moved, model, maps, viewpoint_kappa=viewpoint_kappa,
                                  use_weights=use_weights, k1_cutoff=k1_cutoff,
                                  scale_bounds=bounds), 1.0 / frame_scale)
