@@ -172,9 +172,11 @@ def test_compiled_fit_refuses_non_finite_scores():
     assert solve_fit_reference(p0, lo, hi, X, y, layout, 1e-4) is None
 
 
-def sphere_profile(mu_az, mu_el, width=np.radians(8.0), elevations=np.arange(-30, 61, 7.5)):
+def sphere_profile(mu_az, mu_el, elevations=None):
     """A local refinement's profile over the sphere's training grid (one score a view),
-    falling off as a Gaussian in the angle from a viewpoint between the views."""
+    falling off as a Gaussian of 8 degrees in the angle from a viewpoint between the views."""
+    elevations = np.arange(-30, 61, 7.5) if elevations is None else elevations
+    width = np.radians(8.0)
     az, el = (np.radians(a).ravel() for a in np.meshgrid(np.arange(0, 360, 10.0), elevations))
     angle = np.arccos(np.clip(viewing_direction(az, el) @ viewing_direction(mu_az, mu_el), -1, 1))
     score = 0.1 + 0.8 * np.exp(-angle**2 / (2 * width**2))

@@ -3,8 +3,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from posevote.features.edges import extract_edges
-from posevote.inference.search import SearchOptions, image_maps, scale_maps
+from posevote.features.edges import EdgeFeatures, extract_edges
+from posevote.inference.search import SearchOptions, SearchSetup, image_maps, scale_maps
+from posevote.model.density import build_model
 from posevote.model.kernels import K1_CUTOFF
 from posevote.refinement import find_modes, polish_pose, refine_mode
 from posevote.refinement.local import (
@@ -12,9 +13,11 @@ from posevote.refinement.local import (
     local_refine,
     probe_pose,
     profile_refine,
+    refine_viewpoint,
     rescale_mode,
     unit_score,
 )
+from posevote.results import Hypothesis
 
 
 @pytest.fixture(scope="module")
@@ -280,11 +283,6 @@ def test_rescale_anchor_weighs_each_scale_by_its_correlation(synthetic_training,
 
 def _square_scene(line_drawing, scale, position=(90.0, 90.0)):
     """A one-view model of a square with a cross, the view drawn at ``scale``, and a pose."""
-    from posevote.features.edges import EdgeFeatures
-    from posevote.inference.search import SearchSetup
-    from posevote.model.density import build_model
-    from posevote.results import Hypothesis
-
     segments, square = line_drawing
     lines = square(20.0) + [([-12.0, 0.0], [12.0, 0.0]), ([0.0, -12.0], [0.0, 12.0])]
     view = segments(lines)
@@ -325,3 +323,40 @@ def test_unit_score_falls_off_the_object(line_drawing):
     on = unit_score(pose, model, feats, (180, 180), setup)
     off = unit_score(replace(pose, position=(30.0, 30.0)), model, feats, (180, 180), setup)
     assert off < 0.1 < on
+
+
+def _rectangle(segments, azimuth, elevation):
+    """A view whose edges move with the viewpoint (degrees): wider with the azimuth, its
+    inner bar higher with the elevation."""
+    w = 20.0 + 0.3 * azimuth
+    c = [[-w, -20.0], [w, -20.0], [w, 20.0], [-w, 20.0]]
+    bar = 0.3 * elevation
+    return segments([(c[k], c[(k + 1) % 4]) for k in range(4)] + [([-w, bar], [w, bar])])
+
+
+def test_refine_viewpoint_reads_the_viewpoint_between_training_views(line_drawing):
+    segments, _ = line_drawing
+    grid = [(a, e) for a in range(-20, 21, 10) for e in np.arange(-15.0, 15.1, 7.5)]
+    views = [_rectangle(segments, a, e) for a, e in grid]
+    model = build_model([EdgeFeatures(xy=v.xy + 50.0, theta=v.theta) for v in views],
+                        poses=np.radians([[a, e, 0.0] for a, e in grid]),
+                        centers=np.full((len(grid), 2), 50.0), scales=np.ones(len(grid)),
+                        box_sizes=np.full((len(grid), 2), 46.0), instances=[0] * len(grid),
+                        instance_names=["toy"], reference_size=46.0)
+    setup = SearchSetup(options=SearchOptions(), position_sigma=2.0, edge_spacing=2.0,
+                        viewpoint_kappa=300.0)
+    view = _rectangle(segments, 4.0, 3.0)
+    maps = image_maps(EdgeFeatures(xy=view.xy + 80.0, theta=view.theta), (160, 160), setup)
+    start = Hypothesis(azimuth=0.0, elevation=0.0, inplane=0.0, scale=1.0, position=(80.0, 80.0),
+                       box=(57.0, 57.0, 46.0, 46.0), score=1.0, refined=True)
+    found = refine_viewpoint(start, model, maps, setup, lambda poses: np.ones(len(poses)))
+    assert np.degrees(found.azimuth) == pytest.approx(4.0, abs=1.5)
+    assert np.degrees(found.elevation) == pytest.approx(3.0, abs=1.5)
+    assert np.allclose(found.position, (80.0, 80.0), atol=1.0)
+    # One elevation: the half-turn's viewpoint is left as it is polished.
+    ring = build_model([EdgeFeatures(xy=v.xy + 50.0, theta=v.theta) for v in views[2::5]],
+                       poses=np.radians([[a, 0.0, 0.0] for a in range(-20, 21, 10)]),
+                       centers=np.full((5, 2), 50.0), scales=np.ones(5),
+                       box_sizes=np.full((5, 2), 46.0), instances=[0] * 5,
+                       instance_names=["toy"], reference_size=46.0)
+    assert refine_viewpoint(start, ring, maps, setup, lambda poses: np.ones(len(poses))) is start

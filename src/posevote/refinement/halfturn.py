@@ -39,7 +39,7 @@ from posevote.inference.search import SearchSetup
 from posevote.inference.templates import CORRELATION_FLOOR
 from posevote.model.density import PoseModel
 from posevote.model.kernels import K1_CUTOFF
-from posevote.refinement.local import polish_pose, unit_score
+from posevote.refinement.local import polish_pose, refine_viewpoint, unit_score
 from posevote.refinement.share import edge_share, inside_pose, pose_features
 from posevote.results import Hypothesis
 
@@ -86,13 +86,15 @@ def half_turn(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps, setup: S
     weight = np.maximum(correlate(poses), CORRELATION_FLOOR)
     product = np.array([h.score for h in poses]) * weight
     best = 1 + int(np.argmax(product[1:]))
-    other = poses[best]
-    if not product[best] > 0:
+    # The found pose's viewpoint was read between the training views: so is its rival's.
+    other = refine_viewpoint(poses[best], model, maps, setup, correlate)
+    other_weight = max(float(correlate([other])[0]), CORRELATION_FLOOR)
+    if not other.score * other_weight > 0:
         return hypothesis
     # The side that fits shrunk onto inner edges scores high in pixels; above
     # chance in object units each pose is judged at its own size.
     found_value = unit_score(found, model, features, shape, setup) * float(weight[0])
-    other_value = unit_score(other, model, features, shape, setup) * float(weight[best])
+    other_value = unit_score(other, model, features, shape, setup) * other_weight
     if not other_value > 0:
         return hypothesis
     found_feats = pose_features(found, model, setup)
@@ -106,5 +108,5 @@ def half_turn(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps, setup: S
         return hypothesis
     if other_value * edge_share(other, model, maps, selected, setup,
                                 features=other_feats) > found_value * share:
-        return replace(other, score=float(product[best]), refined=True)
+        return replace(other, score=float(other.score * other_weight), refined=True)
     return hypothesis

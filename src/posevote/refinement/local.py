@@ -19,12 +19,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from posevote.features.edges import EdgeFeatures
+from posevote.geometry import viewing_direction
 from posevote.inference.maps import TestMaps, scaled_features
 from posevote.inference.search import (
     ProbeSet,
     SearchSetup,
     ViewpointFeatures,
     image_maps,
+    median_spacing,
     viewpoint_features,
 )
 from posevote.inference.templates import CORRELATION_FLOOR
@@ -543,6 +545,64 @@ def profile_refine(probes: ProbeSet, viewpoint: int, model: PoseModel, maps: Tes
         # Scored as the profile's poses were, so that modes and images compare.
         final = replace(final, score=final.score * float(_weights(correlate, [final])[0]))
     return replace(final, refined=True)
+
+
+def refine_viewpoint(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps,
+                     setup: SearchSetup,
+                     correlate: Callable[[list[Hypothesis]], NDArray[np.float64]]
+                     ) -> Hypothesis:
+    """A pose's viewpoint read from the training views around it, as :func:`profile_refine`
+    reads the found pose's over the sphere (beyond the paper).
+
+    The pose is polished (:func:`polish_pose`) at every training viewpoint
+    within :data:`~posevote.refinement.fitting.FIT_RADIUS_STEPS` spacings of
+    its own, each polish scored by its narrow score times its template
+    correlation; the viewpoint is read at the peak of that profile
+    (:func:`~posevote.refinement.fitting.peak_viewpoint`) and the pose polished
+    there. The half-turn check gives its candidate this refinement, so that
+    the two sides it compares are refined alike. Models of one elevation
+    return the pose as it is (their profile is fitted on the search's finer
+    grid, which only :func:`profile_refine` has).
+
+    Parameters
+    ----------
+    hypothesis : Hypothesis
+        The pose (image pixels).
+    model : PoseModel
+    maps : TestMaps
+        The image's narrow maps in pixels.
+    setup : SearchSetup
+    correlate : callable
+        Each pose's correlation with the object's grey levels.
+
+    Returns
+    -------
+    Hypothesis
+        The polished pose at the profile's peak, or at its best training
+        viewpoint where the profile has no peak; scored as :func:`polish_pose`
+        scores.
+    """
+    if not np.ptp(model.view_elevation) > 0:
+        return hypothesis
+    kw = _score_options(setup)
+    directions = viewing_direction(model.view_azimuth, model.view_elevation)
+    near = np.flatnonzero(directions @ viewing_direction(hypothesis.azimuth, hypothesis.elevation)
+                          >= np.cos(FIT_RADIUS_STEPS * median_spacing(directions)))
+    if len(near) < 5:
+        return hypothesis
+    polished = [polish_pose(replace(hypothesis, azimuth=float(model.view_azimuth[i]),
+                                    elevation=float(model.view_elevation[i])), model, maps, **kw)
+                for i in near]
+    score = np.array([h.score for h in polished]) * _weights(correlate, polished)
+    profile = ProbeSet(azimuth=model.view_azimuth[near], elevation=model.view_elevation[near],
+                       inplane=np.zeros(1), scale=np.ones(1), score=score[:, None, None],
+                       translation=np.zeros((len(near), 1, 1, 2)), box=model.view_box[near])
+    best = int(np.argmax(score))
+    peak = peak_viewpoint(profile, best)
+    if peak is None:
+        return polished[best]
+    return polish_pose(replace(polished[best], azimuth=peak[0], elevation=peak[1]), model, maps,
+                       **kw)
 
 
 #: The local refinement keeps the scale within this many steps of the search's
