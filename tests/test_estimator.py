@@ -436,7 +436,7 @@ def test_a_turned_pose_keeps_the_found_pose_as_the_next_mode(synthetic_training,
 
     def turn(hypothesis, *args, **kwargs):
         calls.append(hypothesis)
-        return replace(hypothesis, azimuth=float(np.mod(hypothesis.azimuth + np.pi, 2 * np.pi)))
+        return replace(hypothesis, azimuth=float(np.mod(hypothesis.azimuth + np.pi, 2 * np.pi))), True
 
     monkeypatch.setattr(estimator_module, "half_turn", turn)
     result = est.estimate(img)

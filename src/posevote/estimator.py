@@ -384,12 +384,11 @@ class PoseEstimator(GroupedParams):
                 pixel_maps = image_maps(feats, shape, setup)
                 # A plainer side over the other explains itself as fully: the
                 # image's own edges decide (measured with the templates).
-                turned = half_turn(hyps[0], model, pixel_maps, setup, correlate,
-                                   features=feats, shape=shape)
-                if turned is not hyps[0]:
-                    # The search's profile still favours the found pose's side: it
-                    # stays, as the next mode, with the probability of its side.
-                    hyps = [turned, *hyps][:self.max_modes]
+                pose, turned = half_turn(hyps[0], model, pixel_maps, setup, correlate,
+                                         features=feats, shape=shape)
+                # The search's profile still favours the found pose's side: a turned
+                # pose keeps it, as the next mode, with the probability of its side.
+                hyps = [pose, *hyps][:self.max_modes] if turned else [pose, *hyps[1:]]
                 # The narrow score draws the outline in onto the object's inner
                 # edges; the image's edges explained too set the scale.
                 hyps[0] = share_scale(hyps[0], model, pixel_maps, setup)

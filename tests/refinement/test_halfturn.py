@@ -39,8 +39,10 @@ def _pose(azimuth, scale, position=(80.0, 80.0)):
 def _turn(pose, model, view, correlate=None):
     """``half_turn`` of ``pose`` in an image that shows ``view`` at (80, 80)."""
     feats = EdgeFeatures(xy=view.xy + 80.0, theta=view.theta)
-    return half_turn(pose, model, image_maps(feats, (160, 160), _SETUP), _SETUP,
-                     correlate or _flat, features=feats, shape=(160, 160))
+    found, turned = half_turn(pose, model, image_maps(feats, (160, 160), _SETUP), _SETUP,
+                              correlate or _flat, features=feats, shape=(160, 160))
+    assert turned == (found is not pose)
+    return found
 
 
 def _flat(poses):

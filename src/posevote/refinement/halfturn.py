@@ -14,7 +14,9 @@ explain (:func:`~posevote.refinement.share.edge_share`).
 :func:`half_turn` polishes the found pose's half-turn (azimuth plus 180
 degrees, the elevation kept) from :data:`HALF_TURN_SCALES` times its scale,
 keeps the polish whose narrow score times template correlation is highest,
-and scores it and the found pose (polished on the same maps) by their narrow
+reads its viewpoint between the training views as the found pose's was read
+(:func:`~posevote.refinement.local.refine_viewpoint`, over the sphere), and
+scores it and the found pose (polished on the same maps) by their narrow
 score above chance with the kernel in object units at each one's own scale
 (:func:`~posevote.refinement.local.unit_score`: the side shrunk onto the
 other's inner edges gains nothing from its size) times their correlation and
@@ -50,7 +52,7 @@ HALF_TURN_SCALES = (0.85, 1.0, 1 / 0.85)
 
 def half_turn(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps, setup: SearchSetup,
               correlate: Callable[[list[Hypothesis]], NDArray[np.float64]], *,
-              features: EdgeFeatures, shape: tuple[int, int]) -> Hypothesis:
+              features: EdgeFeatures, shape: tuple[int, int]) -> tuple[Hypothesis, bool]:
     """The found pose, or its half-turn where that explains the image better.
 
     Parameters
@@ -73,12 +75,21 @@ def half_turn(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps, setup: S
     Returns
     -------
     Hypothesis
-        ``hypothesis`` itself, or the polished half-turn scored by its narrow
-        score times its correlation (as the local refinement scores).
+        The found pose (over the sphere its viewpoint read again, with
+        ``hypothesis``'s score; else ``hypothesis`` itself), or the polished
+        half-turn scored by its narrow score times its correlation (as the
+        local refinement scores).
+    bool
+        Whether it is the half-turn.
     """
     opts: dict[str, Any] = {"viewpoint_kappa": setup.viewpoint_kappa,
                             "use_weights": setup.use_weights, "k1_cutoff": K1_CUTOFF}
-    found = polish_pose(hypothesis, model, maps, **opts)
+    # Over the sphere both sides' viewpoints are read between the training views
+    # alike; a turntable's found pose was fitted on the search's finer grid.
+    sphere = bool(np.ptp(model.view_elevation) > 0)
+    found = (refine_viewpoint(hypothesis, model, maps, setup, correlate) if sphere
+             else polish_pose(hypothesis, model, maps, **opts))
+    kept = replace(found, score=hypothesis.score) if sphere else hypothesis
     turned = float(np.mod(hypothesis.azimuth + np.pi, 2.0 * np.pi))
     candidates = [polish_pose(replace(hypothesis, azimuth=turned, scale=hypothesis.scale * f),
                               model, maps, **opts) for f in HALF_TURN_SCALES]
@@ -86,17 +97,16 @@ def half_turn(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps, setup: S
     weight = np.maximum(correlate(poses), CORRELATION_FLOOR)
     product = np.array([h.score for h in poses]) * weight
     best = 1 + int(np.argmax(product[1:]))
-    # The found pose's viewpoint was read between the training views: so is its rival's.
     other = refine_viewpoint(poses[best], model, maps, setup, correlate)
     other_weight = max(float(correlate([other])[0]), CORRELATION_FLOOR)
     if not other.score * other_weight > 0:
-        return hypothesis
+        return kept, False
     # The side that fits shrunk onto inner edges scores high in pixels; above
     # chance in object units each pose is judged at its own size.
     found_value = unit_score(found, model, features, shape, setup) * float(weight[0])
     other_value = unit_score(other, model, features, shape, setup) * other_weight
     if not other_value > 0:
-        return hypothesis
+        return kept, False
     found_feats = pose_features(found, model, setup)
     other_feats = pose_features(other, model, setup)
     # The edges inside either outline: the object's, wherever either pose puts it.
@@ -105,8 +115,8 @@ def half_turn(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps, setup: S
     share = edge_share(found, model, maps, selected, setup, features=found_feats)
     # A share is at most 1: the half-turn cannot win unless its value beats this.
     if other_value <= found_value * share:
-        return hypothesis
+        return kept, False
     if other_value * edge_share(other, model, maps, selected, setup,
                                 features=other_feats) > found_value * share:
-        return replace(other, score=float(other.score * other_weight), refined=True)
-    return hypothesis
+        return replace(other, score=float(other.score * other_weight), refined=True), True
+    return kept, False
