@@ -559,10 +559,10 @@ def refine_viewpoint(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps,
     its own, each polish scored by its narrow score times its template
     correlation; the viewpoint is read at the peak of that profile
     (:func:`~posevote.refinement.fitting.peak_viewpoint`) and the pose polished
-    there. The half-turn check gives its candidate this refinement, so that
-    the two sides it compares are refined alike. Models of one elevation
-    return the pose as it is (their profile is fitted on the search's finer
-    grid, which only :func:`profile_refine` has).
+    there. The half-turn check reads both its sides so, that the two poses
+    it compares are refined alike. Models of one elevation return the pose
+    as it is (their profile is fitted on the search's finer grid, which only
+    :func:`profile_refine` has).
 
     Parameters
     ----------
