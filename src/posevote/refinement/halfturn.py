@@ -14,13 +14,13 @@ explain (:func:`~posevote.refinement.share.edge_share`).
 :func:`half_turn` polishes the found pose's half-turn (azimuth plus 180
 degrees, the elevation kept) from :data:`HALF_TURN_SCALES` times its scale,
 keeps the polish whose narrow score times template correlation is highest,
-reads its viewpoint between the training views as the found pose's was read
-(:func:`~posevote.refinement.local.refine_viewpoint`, over the sphere), and
-scores it and the found pose (polished on the same maps) by their narrow
-score above chance with the kernel in object units at each one's own scale
-(:func:`~posevote.refinement.local.unit_score`: the side shrunk onto the
-other's inner edges gains nothing from its size) times their correlation and
-their share of the test edges. The half-turn replaces the found pose where
+reads its viewpoint and the found pose's between the training views alike
+(:func:`~posevote.refinement.local.refine_viewpoint`, over the sphere; on a
+turntable the found pose is polished on the same maps), and scores the two
+by their narrow score above chance with the kernel in object units at each
+one's own scale (:func:`~posevote.refinement.local.unit_score`: the side
+shrunk onto the other's inner edges gains nothing from its size) times their
+correlation and their share of the test edges. The half-turn replaces the found pose where
 it scores higher. It runs with the template re-ranking and the local
 refinement (the ``cluttered`` preset); docs/DEFAULTS.md, "Half-turn check",
 has the measurements.

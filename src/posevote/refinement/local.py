@@ -446,6 +446,14 @@ def start_near(probes: ProbeSet, viewpoint: int, anchor: Hypothesis) -> Hypothes
     return probe_pose(probes, viewpoint, int(a), int(s))
 
 
+def viewpoint_profile(azimuth: NDArray[np.float64], elevation: NDArray[np.float64],
+                      score: NDArray[np.float64], box: NDArray[np.float64]) -> ProbeSet:
+    """Maximised scores by viewpoint as probes of one in-plane angle and scale (for the fits)."""
+    return ProbeSet(azimuth=azimuth, elevation=elevation, inplane=np.zeros(1), scale=np.ones(1),
+                    score=score[:, None, None], translation=np.zeros((len(score), 1, 1, 2)),
+                    box=box)
+
+
 def profile_refine(probes: ProbeSet, viewpoint: int, model: PoseModel, maps: TestMaps, *,
                    viewpoint_kappa: float, use_weights: bool = True, k1_cutoff: float = 0.1,
                    radius_steps: float = 2.5, scale_margin: float | None = None,
@@ -523,9 +531,8 @@ def profile_refine(probes: ProbeSet, viewpoint: int, model: PoseModel, maps: Tes
     score = np.array([h.score for h in polished])
     if correlate is not None:
         score = score * _weights(correlate, [in_frame(h, 1.0 / frame_scale) for h in polished])
-    profile = ProbeSet(azimuth=probes.azimuth[views], elevation=probes.elevation[views],
-                       inplane=np.zeros(1), scale=np.ones(1), score=score[:, None, None],
-                       translation=np.zeros((len(views), 1, 1, 2)), box=probes.box[views])
+    profile = viewpoint_profile(probes.azimuth[views], probes.elevation[views], score,
+                                probes.box[views])
     best = int(np.argmax(score))
     seed = polished[best]
     if profile.turntable:
@@ -594,9 +601,8 @@ def refine_viewpoint(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps,
                                     elevation=float(model.view_elevation[i])), model, maps, **kw)
                 for i in near]
     score = np.array([h.score for h in polished]) * _weights(correlate, polished)
-    profile = ProbeSet(azimuth=model.view_azimuth[near], elevation=model.view_elevation[near],
-                       inplane=np.zeros(1), scale=np.ones(1), score=score[:, None, None],
-                       translation=np.zeros((len(near), 1, 1, 2)), box=model.view_box[near])
+    profile = viewpoint_profile(model.view_azimuth[near], model.view_elevation[near], score,
+                                model.view_box[near])
     best = int(np.argmax(score))
     peak = peak_viewpoint(profile, best)
     if peak is None:
