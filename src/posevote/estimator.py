@@ -11,6 +11,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import replace
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -35,7 +36,11 @@ from posevote.inference.search import (
     probe,
     search_maps,
 )
-from posevote.inference.templates import pose_correlations, rerank_by_template
+from posevote.inference.templates import (
+    gradient_similarity,
+    pose_correlations,
+    rerank_by_template,
+)
 from posevote.inference.verification import verify
 from posevote.model.appearance import AppearanceModel, AppearanceOptions
 from posevote.model.density import PoseModel, origin_offset
@@ -385,6 +390,7 @@ class PoseEstimator(GroupedParams):
                 # A plainer side over the other explains itself as fully: the
                 # image's own edges decide (measured with the templates).
                 pose, turned = half_turn(hyps[0], model, pixel_maps, setup, correlate,
+                                         resemble=partial(gradient_similarity, model, img),
                                          features=feats, shape=shape)
                 # The search's profile still favours the found pose's side: a turned
                 # pose keeps it, as the next mode, with the probability of its side.

@@ -1,6 +1,7 @@
 import copy
 from dataclasses import replace
 
+import cv2
 import numpy as np
 import pytest
 
@@ -8,12 +9,14 @@ from posevote.inference import templates
 from posevote.inference.templates import (
     TILES,
     correlations,
+    gradient_similarity,
     rerank_by_template,
     sample_bilinear,
     template_pixels,
     tile_correlation,
 )
 from posevote.model.templates import TEMPLATE_SIDE, template_frame
+from posevote.results import Hypothesis
 
 
 def _template(seed=0):
@@ -167,3 +170,45 @@ def test_a_model_not_fitted_for_templates_is_refused(fitted_estimator, draw):
     with pytest.raises(ValueError, match="fit \\(or retrain\\) with search.rerank='template'"):
         copy.deepcopy(fitted_estimator).set_params(search__rerank="template").estimate(
             draw(0.0))
+
+
+def _sides():
+    """A face (a body with an eye) and its plain back, on masks of the same outline."""
+    face = np.full((TEMPLATE_SIDE, TEMPLATE_SIDE), np.nan, dtype=np.float32)
+    face[16:80, 24:72] = np.linspace(0.1, 0.5, 48)   # a shaded body
+    face[16:40, 24:72] += 0.4                        # the head
+    back = face.copy()
+    face[22:32, 40:56] = 0.0                         # the eye
+    return face, back
+
+
+def _scene(template, pose):
+    """A noisy image showing ``template`` under ``pose`` (cell 1)."""
+    frame = template_frame(np.asarray(pose.position), pose.scale, pose.inplane)
+    shape = (200, 200)
+    warp = {"dsize": shape[::-1], "flags": cv2.INTER_LINEAR}
+    drawn = cv2.warpAffine(np.nan_to_num(template, nan=0.0), frame, **warp)
+    mask = cv2.warpAffine(np.isfinite(template).astype(np.float32), frame, **warp)
+    noise = np.random.default_rng(3).uniform(0.3, 0.7, shape).astype(np.float32)
+    return mask * drawn + (1.0 - mask) * noise
+
+
+def test_gradient_similarity_tells_a_face_from_its_plain_back():
+    from types import SimpleNamespace
+
+    face, back = _sides()
+    model = SimpleNamespace(view_template=np.stack([face, back]).astype(np.float16),
+                            view_template_cell=np.ones(2), view_azimuth=np.array([0.0, np.pi]),
+                            view_elevation=np.zeros(2))
+    pose = Hypothesis(azimuth=0.0, elevation=0.0, inplane=0.3, scale=1.2, position=(100.0, 90.0),
+                      box=(0.0, 0.0, 1.0, 1.0), score=1.0, refined=True)
+    image = _scene(face, pose)
+    right = gradient_similarity(model, image, pose)
+    assert right > 0.8
+    # The plain back under the same pose misses the eye.
+    assert gradient_similarity(model, image, replace(pose, azimuth=np.pi)) < right - 0.02
+    # Where the face is not, the likeness falls.
+    assert gradient_similarity(model, image, replace(pose, position=(30.0, 30.0))) < 0.5
+    no_templates = SimpleNamespace(view_template=None, view_template_cell=None)
+    with pytest.raises(ValueError, match="needs the views' templates"):
+        gradient_similarity(no_templates, image, pose)

@@ -21,12 +21,14 @@ def sides(line_drawing):
     return face, segments(square(20.0 / _BACK))
 
 
-def _model(sides):
-    views = [EdgeFeatures(xy=f.xy + 50.0, theta=f.theta) for f in sides]
-    return build_model(views, poses=np.array([[0.0, 0.0, 0.0], [np.pi, 0.0, 0.0]]),
-                       centers=np.full((2, 2), 50.0), scales=np.ones(2),
-                       box_sizes=np.array([[40.0, 40.0], [47.0, 47.0]]), instances=[0, 0],
-                       instance_names=["toy"], reference_size=40.0)
+def _model(sides, elevations=(0.0,)):
+    """Both sides at each elevation (several: a model over the sphere)."""
+    views = [EdgeFeatures(xy=f.xy + 50.0, theta=f.theta) for _ in elevations for f in sides]
+    poses = np.array([[a, e, 0.0] for e in elevations for a in (0.0, np.pi)])
+    n = len(poses)
+    return build_model(views, poses=poses, centers=np.full((n, 2), 50.0), scales=np.ones(n),
+                       box_sizes=np.array([[40.0, 40.0], [47.0, 47.0]] * len(elevations)),
+                       instances=[0] * n, instance_names=["toy"], reference_size=40.0)
 
 
 def _pose(azimuth, scale, position=(80.0, 80.0)):
@@ -36,17 +38,24 @@ def _pose(azimuth, scale, position=(80.0, 80.0)):
                                               side, side), score=1.0, refined=True)
 
 
-def _turn(pose, model, view, correlate=None):
+def _turn(pose, model, view, correlate=None, resemble=None):
     """``half_turn`` of ``pose`` in an image that shows ``view`` at (80, 80)."""
     feats = EdgeFeatures(xy=view.xy + 80.0, theta=view.theta)
     found, turned = half_turn(pose, model, image_maps(feats, (160, 160), _SETUP), _SETUP,
-                              correlate or _flat, features=feats, shape=(160, 160))
-    assert turned == (found is not pose)
+                              correlate or _flat, resemble=resemble or _alike, features=feats,
+                              shape=(160, 160))
+    assert turned == (np.cos(found.azimuth - pose.azimuth) < 0)
+    if len(np.unique(model.view_elevation)) == 1:
+        assert turned == (found is not pose)         # a turntable's kept pose is the same
     return found
 
 
 def _flat(poses):
     return np.ones(len(poses))
+
+
+def _alike(pose):
+    return 1.0
 
 
 def test_the_plain_back_over_the_face_turns_to_the_face(sides):
@@ -65,10 +74,28 @@ def test_the_right_pose_stays(sides):
     assert _turn(back, model, sides[1]) is back
 
 
-def test_the_correlation_weighs_in(sides):
-    # A half-turn whose grey levels do not match is not taken, however many edges it explains.
+def test_the_correlation_weighs_in_on_a_turntable(sides):
+    # A half-turn whose grey levels do not match is not taken, however many edges it
+    # explains; the gradients' likeness is not asked.
     def against_the_face(poses):
         return np.array([0.2 if abs(p.azimuth) < 1.0 else 1.0 for p in poses])
 
     back = _pose(np.pi, _BACK)
     assert _turn(back, _model(sides), sides[0], against_the_face) is back
+    assert _turn(back, _model(sides), sides[0],
+                 resemble=lambda pose: against_the_face([pose])[0]) is not back
+
+
+def test_the_gradients_weigh_in_over_the_sphere(sides):
+    # Over the sphere the gradients' likeness to the templates takes the correlation's place.
+    model = _model(sides, elevations=(-0.2, 0.0, 0.2))
+
+    def against_the_face(pose):
+        return 0.2 if abs(pose.azimuth) < 1.0 else 1.0
+
+    back = _pose(np.pi, _BACK)
+    assert _turn(back, model, sides[0], resemble=against_the_face).azimuth == pytest.approx(np.pi)
+    assert _turn(back, model, sides[0]).azimuth == pytest.approx(0.0, abs=0.05)
+    assert _turn(back, model, sides[0], correlate=lambda poses: np.array(
+        [0.2 if abs(p.azimuth) < 1.0 else 1.0 for p in poses])).azimuth == pytest.approx(
+        0.0, abs=0.05)

@@ -22,7 +22,8 @@ from numpy.typing import NDArray
 
 #: Height of the descriptor window, pixels; its width follows the training boxes' shape.
 WINDOW_HEIGHT = 48
-_CELL = 8
+#: Pixels across a HOG cell (2 x 2 cells a block).
+HOG_CELL = 8
 _ORIENTATIONS = 9
 _HYS_CLIP = 0.2  # L2-Hys: the block's normalised values are clipped here, then renormalised
 _EPS = 1e-5
@@ -35,8 +36,8 @@ def window_shape(box_sizes: NDArray[np.float64]) -> tuple[int, int]:
     times that, rounded to whole 8-pixel cells and kept within 3-18 cells.
     """
     aspect = float(np.median(box_sizes[:, 0] / box_sizes[:, 1])) if len(box_sizes) else 1.0
-    cells = int(np.clip(round(WINDOW_HEIGHT * aspect / _CELL), 3, 18))
-    return WINDOW_HEIGHT, cells * _CELL
+    cells = int(np.clip(round(WINDOW_HEIGHT * aspect / HOG_CELL), 3, 18))
+    return WINDOW_HEIGHT, cells * HOG_CELL
 
 
 def crop_box(image: NDArray[np.floating], box: Sequence[float]) -> NDArray[np.floating]:
@@ -164,7 +165,7 @@ def hog(crop: NDArray[Any]) -> NDArray[np.float32]:
     """HOG descriptor of a grey crop (at least 16 x 16 pixels), as :func:`hog_reference`."""
     crop = np.ascontiguousarray(crop, dtype=np.float32)
     out = np.empty(descriptor_length(crop.shape[:2]), dtype=np.float64)
-    _hog_kernel(crop, _CELL, _HYS_CLIP, _EPS, out)
+    _hog_kernel(crop, HOG_CELL, _HYS_CLIP, _EPS, out)
     return out.astype(np.float32)
 
 
@@ -173,11 +174,11 @@ def hog_reference(crop: NDArray[np.floating]) -> NDArray[np.float32]:
     from skimage.feature import hog as skimage_hog
 
     return skimage_hog(np.asarray(crop, dtype=np.float32), orientations=_ORIENTATIONS,
-                       pixels_per_cell=(_CELL, _CELL), cells_per_block=(2, 2),
+                       pixels_per_cell=(HOG_CELL, HOG_CELL), cells_per_block=(2, 2),
                        block_norm="L2-Hys", feature_vector=True).astype(np.float32)
 
 
 def descriptor_length(window: tuple[int, int]) -> int:
     """Length of a :func:`box_descriptor` for ``window``."""
-    blocks_y, blocks_x = window[0] // _CELL - 1, window[1] // _CELL - 1
+    blocks_y, blocks_x = window[0] // HOG_CELL - 1, window[1] // HOG_CELL - 1
     return blocks_y * blocks_x * 4 * _ORIENTATIONS

@@ -23,10 +23,12 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
+from posevote.features.appearance import HOG_CELL, hog
 from posevote.geometry import viewing_direction
 from posevote.inference.search import ProbeSet
 from posevote.model.density import PoseModel
 from posevote.model.templates import TEMPLATE_BLUR, template_frame
+from posevote.results import Hypothesis
 
 #: Probes re-ranked at least; beyond them, every probe whose edge score beats the
 #: best product (docs/DEFAULTS.md, "Template re-ranking").
@@ -201,6 +203,15 @@ def correlations(image: NDArray[np.float32], frames: NDArray[np.float64],
     return out
 
 
+def nearest_views(model: PoseModel, azimuth: NDArray[np.float64],
+                  elevation: NDArray[np.float64]) -> NDArray[np.intp]:
+    """The training view nearest each viewpoint (arrays of N), by viewing direction."""
+    # Per distinct viewpoint: thousands of candidates share a few hundred.
+    pairs, back = np.unique(np.column_stack([azimuth, elevation]), axis=0, return_inverse=True)
+    return np.argmax(viewing_direction(pairs[:, 0], pairs[:, 1]) @ viewing_direction(
+        model.view_azimuth, model.view_elevation).T, axis=1)[back.ravel()]
+
+
 def pose_correlations(model: PoseModel, image: NDArray[np.floating],
                       azimuth: NDArray[np.float64], elevation: NDArray[np.float64],
                       inplane: NDArray[np.float64], scale: NDArray[np.float64],
@@ -217,10 +228,7 @@ def pose_correlations(model: PoseModel, image: NDArray[np.floating],
         raise ValueError("SearchOptions.rerank='template' needs the views' templates, "
                          "learnt when the model is fitted with it; fit (or retrain) with "
                          "search.rerank='template'")
-    # Per distinct viewpoint: thousands of candidates share a few hundred.
-    pairs, back = np.unique(np.column_stack([azimuth, elevation]), axis=0, return_inverse=True)
-    nearest = np.argmax(viewing_direction(pairs[:, 0], pairs[:, 1]) @ viewing_direction(
-        model.view_azimuth, model.view_elevation).T, axis=1)[back.ravel()]
+    nearest = nearest_views(model, azimuth, elevation)
     views, view_of = np.unique(nearest, return_inverse=True)
     view_of = view_of.ravel()
     pixels = [template_pixels(model.view_template[view]) for view in views]
@@ -236,6 +244,60 @@ def pose_correlations(model: PoseModel, image: NDArray[np.floating],
                              dtype=np.float32)
         out[at] = correlations(blurred, frames[at], view_of[at], pixels)
     return out
+
+
+def gradient_similarity(model: PoseModel, image: NDArray[np.floating], hypothesis: Hypothesis
+                        ) -> float:
+    """How alike the image's gradients and the nearest training view's template's are
+    under a pose.
+
+    The image is resampled into the template's frame (:func:`template_frame`)
+    and both are described by HOG (:func:`posevote.features.appearance.hog`,
+    the template's background filled with the image's own pixels); the
+    result is the mean cosine of their blocks that lie mostly on the
+    template's mask. Histograms of orientations pooled over cells tolerate
+    the pixel or two by which a pose between views misplaces a detail that
+    a grey-level correlation reads as a mismatch.
+
+    Parameters
+    ----------
+    model : PoseModel
+        With templates.
+    image : ndarray, shape (H, W)
+        The grey test image.
+    hypothesis : Hypothesis
+        The pose, in image pixels.
+
+    Returns
+    -------
+    float
+        In [0, 1]; 0 where no block lies on the mask.
+    """
+    if model.view_template is None or model.view_template_cell is None:
+        raise ValueError("gradient_similarity needs the views' templates (search.rerank="
+                         "'template')")
+    view = int(nearest_views(model, np.array([hypothesis.azimuth]),
+                             np.array([hypothesis.elevation]))[0])
+    template = np.asarray(model.view_template[view], dtype=np.float32)
+    frame = template_frame(np.asarray(hypothesis.position, dtype=np.float64),
+                           hypothesis.scale * model.view_template_cell[view], hypothesis.inplane)
+    side = template.shape[0]
+    crop = cv2.warpAffine(np.asarray(image, dtype=np.float32), frame, (side, side),
+                          flags=cv2.WARP_INVERSE_MAP | cv2.INTER_LINEAR,
+                          borderMode=cv2.BORDER_REPLICATE)
+    mask = np.isfinite(template)
+    # The background scores as the image's own: only the object's blocks differ.
+    filled = np.where(mask, template, crop)
+    blocks = side // HOG_CELL - 1
+    described = [hog(x).reshape(blocks, blocks, -1) for x in (crop, filled)]
+    cells = cv2.resize(mask.astype(np.float32), (side // HOG_CELL, side // HOG_CELL),
+                       interpolation=cv2.INTER_AREA)
+    on_mask = (cells[:-1, :-1] + cells[1:, :-1] + cells[:-1, 1:] + cells[1:, 1:]) > 2.0
+    if not on_mask.any():
+        return 0.0
+    a, b = (d[on_mask].astype(np.float64) for d in described)
+    norms = np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1)
+    return float(np.mean(np.sum(a * b, axis=1) / np.maximum(norms, 1e-12)))
 
 
 def rerank_by_template(probes: ProbeSet, model: PoseModel, image: NDArray[np.floating]

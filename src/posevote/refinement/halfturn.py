@@ -19,8 +19,13 @@ reads its viewpoint and the found pose's between the training views alike
 turntable the found pose is polished on the same maps), and scores the two
 by their narrow score above chance with the kernel in object units at each
 one's own scale (:func:`~posevote.refinement.local.unit_score`: the side
-shrunk onto the other's inner edges gains nothing from its size) times their
-correlation and their share of the test edges. The half-turn replaces the found pose where
+shrunk onto the other's inner edges gains nothing from its size) times how
+well the image matches their templates and their share of the test edges.
+Over the sphere the match is the likeness of gradients
+(:func:`~posevote.inference.templates.gradient_similarity`: pooled over
+cells, a small detail that sets the sides apart counts though drawn a pixel
+or two off); on a turntable it is the grey-level correlation (the gradients
+did worse on COIL's sparse views). The half-turn replaces the found pose where
 it scores higher. It runs with the template re-ranking and the local
 refinement (the ``cluttered`` preset); docs/DEFAULTS.md, "Half-turn check",
 has the measurements.
@@ -52,7 +57,8 @@ HALF_TURN_SCALES = (0.85, 1.0, 1 / 0.85)
 
 def half_turn(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps, setup: SearchSetup,
               correlate: Callable[[list[Hypothesis]], NDArray[np.float64]], *,
-              features: EdgeFeatures, shape: tuple[int, int]) -> tuple[Hypothesis, bool]:
+              resemble: Callable[[Hypothesis], float], features: EdgeFeatures,
+              shape: tuple[int, int]) -> tuple[Hypothesis, bool]:
     """The found pose, or its half-turn where that explains the image better.
 
     Parameters
@@ -67,6 +73,9 @@ def half_turn(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps, setup: S
     correlate : callable
         Each pose's correlation with the object's grey levels
         (:func:`posevote.inference.templates.pose_correlations`).
+    resemble : callable
+        How alike a pose's image gradients and its template's are
+        (:func:`posevote.inference.templates.gradient_similarity`).
     features : EdgeFeatures
         The test features, image pixels (the two poses' scores in object units).
     shape : (int, int)
@@ -93,18 +102,23 @@ def half_turn(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps, setup: S
     turned = float(np.mod(hypothesis.azimuth + np.pi, 2.0 * np.pi))
     candidates = [polish_pose(replace(hypothesis, azimuth=turned, scale=hypothesis.scale * f),
                               model, maps, **opts) for f in HALF_TURN_SCALES]
-    poses = [found, *candidates]
-    weight = np.maximum(correlate(poses), CORRELATION_FLOOR)
-    product = np.array([h.score for h in poses]) * weight
-    best = 1 + int(np.argmax(product[1:]))
-    other = refine_viewpoint(poses[best], model, maps, setup, correlate)
+    product = (np.array([h.score for h in candidates])
+               * np.maximum(correlate(candidates), CORRELATION_FLOOR))
+    other = refine_viewpoint(candidates[int(np.argmax(product))], model, maps, setup, correlate)
     other_weight = max(float(correlate([other])[0]), CORRELATION_FLOOR)
     if not other.score * other_weight > 0:
         return kept, False
     # The side that fits shrunk onto inner edges scores high in pixels; above
     # chance in object units each pose is judged at its own size.
-    found_value = unit_score(found, model, features, shape, setup) * float(weight[0])
-    other_value = unit_score(other, model, features, shape, setup) * other_weight
+    if sphere:
+        # Among the sphere's close views a detail that sets the sides apart lies within a
+        # cell of its template's: pooled gradients count it where grey levels blur it.
+        found_like, other_like = resemble(found), resemble(other)
+    else:
+        found_like = max(float(correlate([found])[0]), CORRELATION_FLOOR)
+        other_like = other_weight
+    found_value = unit_score(found, model, features, shape, setup) * found_like
+    other_value = unit_score(other, model, features, shape, setup) * other_like
     if not other_value > 0:
         return kept, False
     found_feats = pose_features(found, model, setup)
