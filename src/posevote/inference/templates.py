@@ -12,6 +12,10 @@ object loses only its own tiles) multiplies the probe's score. Every other
 probe is multiplied by the lowest of those factors, so that the rest keep
 their order below them, as in the coverage re-ranking
 (:mod:`posevote.inference.coverage`).
+
+:func:`gradient_similarity` compares a pose's image with its nearest
+template by their gradients instead (HOG blocks), for the half-turn check
+over the sphere (:mod:`posevote.refinement.halfturn`).
 """
 
 from __future__ import annotations
