@@ -36,11 +36,7 @@ from posevote.inference.search import (
     probe,
     search_maps,
 )
-from posevote.inference.templates import (
-    gradient_similarity,
-    pose_correlations,
-    rerank_by_template,
-)
+from posevote.inference.templates import gradient_similarity, pose_correlations, rerank_by_template
 from posevote.inference.verification import verify
 from posevote.model.appearance import AppearanceModel, AppearanceOptions
 from posevote.model.density import PoseModel, origin_offset
