@@ -31,7 +31,7 @@ from posevote.features.appearance import HOG_CELL, hog
 from posevote.geometry import viewing_direction
 from posevote.inference.search import ProbeSet
 from posevote.model.density import PoseModel
-from posevote.model.templates import TEMPLATE_BLUR, template_frame
+from posevote.model.templates import TEMPLATE_BLUR, in_template, template_frame
 from posevote.results import Hypothesis
 
 #: Probes re-ranked at least; beyond them, every probe whose edge score beats the
@@ -286,9 +286,7 @@ def gradient_similarity(model: PoseModel, image: NDArray[np.floating], hypothesi
     frame = template_frame(np.asarray(hypothesis.position, dtype=np.float64),
                            hypothesis.scale * model.view_template_cell[view], hypothesis.inplane)
     side = template.shape[0]
-    crop = cv2.warpAffine(np.asarray(image, dtype=np.float32), frame, (side, side),
-                          flags=cv2.WARP_INVERSE_MAP | cv2.INTER_LINEAR,
-                          borderMode=cv2.BORDER_REPLICATE)
+    crop = in_template(image, frame)
     mask = np.isfinite(template)
     # The background scores as the image's own: only the object's blocks differ.
     filled = np.where(mask, template, crop)

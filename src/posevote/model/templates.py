@@ -46,6 +46,15 @@ def template_frame(centre: ArrayLike, cell: ArrayLike, angle: ArrayLike) -> NDAr
     return np.concatenate([linear, shift[..., None]], axis=-1)
 
 
+def in_template(image: ArrayLike, frame: NDArray[np.float64]) -> NDArray[np.float32]:
+    """``image`` resampled onto a template's pixels under ``frame``
+    (:func:`template_frame`), bilinear, the border extended."""
+    return np.asarray(cv2.warpAffine(np.asarray(image, dtype=np.float32), frame,
+                                     (TEMPLATE_SIDE, TEMPLATE_SIDE),
+                                     flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                                     borderMode=cv2.BORDER_REPLICATE), dtype=np.float32)
+
+
 def view_template(image: NDArray[np.floating], box: NDArray[np.float64],
                   mask: NDArray[np.bool_] | None, inplane: float
                   ) -> tuple[NDArray[np.float16], float]:
@@ -71,13 +80,12 @@ def view_template(image: NDArray[np.floating], box: NDArray[np.float64],
     """
     cell = float(np.hypot(box[2], box[3])) / TEMPLATE_SIDE
     frame = template_frame(box_centre(box), cell, inplane)
-    size = (TEMPLATE_SIDE, TEMPLATE_SIDE)
-    flags = cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP
     blurred = cv2.GaussianBlur(np.asarray(image, dtype=np.float32), (0, 0), TEMPLATE_BLUR * cell)
-    grey = cv2.warpAffine(blurred, frame, size, flags=flags, borderMode=cv2.BORDER_REPLICATE)
+    grey = in_template(blurred, frame)
     region = box_mask(image.shape, box, margin=0.0)
     if mask is not None:
         region &= mask
-    inside = cv2.warpAffine(region.astype(np.float32), frame, size, flags=flags,
+    inside = cv2.warpAffine(region.astype(np.float32), frame, (TEMPLATE_SIDE, TEMPLATE_SIDE),
+                            flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
                             borderMode=cv2.BORDER_CONSTANT, borderValue=0.0) > 0.99
     return np.where(inside, grey, np.nan).astype(np.float16), cell
