@@ -14,6 +14,7 @@ from posevote import PoseEstimator
 from posevote.camera import (
     Camera,
     object_height_from_distances,
+    origin_depth_factors,
     place,
     read_camera,
     scale_range_for_depths,
@@ -62,6 +63,23 @@ def test_object_height_from_distances():
         object_height_from_distances([10.0, 20.0], [1.0], cam)
     with pytest.raises(ValueError, match="positive"):
         object_height_from_distances([10.0], [0.0], cam)
+
+
+def test_project_and_ray_point_invert_each_other():
+    cam = Camera.from_dict(CAM)
+    point = np.array([0.3, -0.2, 2.5])
+    u, v = cam.project(point)
+    assert (u, v) == pytest.approx((500.0 * 0.3 / 2.5 + 64.0, 520.0 * -0.2 / 2.5 + 60.0))
+    np.testing.assert_allclose(cam.ray_point(u, v, 2.5), point, atol=1e-12)
+
+
+def test_origin_depth_factors_are_depths_over_the_models_depth():
+    cam = Camera.from_dict(CAM)
+    # At training size (100 px high) a 0.25 m object is placed at 520 * 0.25 / 100 m.
+    at = 520.0 * 0.25 / 100.0
+    factors = origin_depth_factors([at, 1.1 * at], cam, object_height_m=0.25,
+                                   reference_size_px=100.0)
+    np.testing.assert_allclose(factors, [1.0, 1.1])
 
 
 def test_place_agrees_with_the_full_transform():

@@ -77,6 +77,15 @@ class Camera:
         """The 3x3 intrinsic matrix."""
         return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
 
+    def project(self, point: ArrayLike) -> NDArray[np.float64]:
+        """The image ``(u, v)`` of a point of the camera frame (metres, in front of the camera)."""
+        x, y, z = np.asarray(point, dtype=np.float64)
+        return np.array([self.fx * x / z + self.cx, self.fy * y / z + self.cy])
+
+    def ray_point(self, u: float, v: float, depth: float) -> NDArray[np.float64]:
+        """The point at ``depth`` (metres) on the ray through pixel ``(u, v)``, camera frame."""
+        return np.array([(u - self.cx) / self.fx * depth, (v - self.cy) / self.fy * depth, depth])
+
     @classmethod
     def from_dict(cls, data: Any, *, where: str = "camera") -> Camera:
         """A camera from ``{"fx", "fy", "cx", "cy"}`` or ``{"K": 3x3}``.
@@ -167,6 +176,38 @@ def object_height_from_distances(box_heights_px: ArrayLike, distances_m: ArrayLi
     return float(np.median(h * d / fy))
 
 
+
+def origin_depth_factors(depths_m: ArrayLike, camera: Camera | Sequence[Camera], *,
+                         object_height_m: float, reference_size_px: float
+                         ) -> NDArray[np.float64]:
+    """Each training origin's depth over the depth a model gives its view at training size.
+
+    The third column of ``fit(..., origins=)``: a model places a view seen at
+    scale 1 at depth ``fy * object_height_m / reference_size_px``; an origin
+    off the object's centre along the line of sight lies nearer or farther
+    by this factor.
+
+    Parameters
+    ----------
+    depths_m : array_like, shape (K,)
+        Each training view's origin depth (its z in the camera frame), metres.
+    camera : Camera or sequence of Camera
+        The training camera, or each view's.
+    object_height_m : float
+        The object's height (:func:`object_height_from_distances`).
+    reference_size_px : float
+        The model's reference box height: the median training box height for
+        one instance.
+
+    Returns
+    -------
+    ndarray, shape (K,)
+    """
+    d = np.asarray(depths_m, dtype=np.float64).reshape(-1)
+    fy = (np.full(len(d), camera.fy) if isinstance(camera, Camera)
+          else np.array([c.fy for c in camera], dtype=np.float64))
+    return d * float(reference_size_px) / (fy * float(object_height_m))
+
 def check_object_height(value: Any) -> float | None:
     """``object_height_m`` as a float, or None; refused unless positive and finite (metres)."""
     if value is None:
@@ -238,7 +279,8 @@ def place(hypothesis: Hypothesis, camera: Camera, *, reference_size_px: float,
         depth = depth_factor * camera.fy * object_height_m / (hypothesis.scale
                                                               * reference_size_px)
         u, v = hypothesis.position if anchor is None else anchor
-        t = ((u - camera.cx) / camera.fx * depth, (v - camera.cy) / camera.fy * depth, depth)
+        x, y, z = camera.ray_point(float(u), float(v), depth).tolist()
+        t = (x, y, z)
     return dataclasses.replace(hypothesis, R_cam_obj=_rows(R), t_cam_obj=t)
 
 

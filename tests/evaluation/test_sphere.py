@@ -43,6 +43,28 @@ def test_run_writes_the_report_and_is_reproducible(tmp_path):
         [{k: v for k, v in r.items() if k not in drop} for r in again]
 
 
+def test_the_true_translation_is_the_mesh_origin():
+    import numpy as np
+
+    from posevote.evaluation.synthetic import PastedView
+    from posevote.geometry import box_centre
+
+    view = sphere._render(np.array([0.6]), 20.0, "r2d2.urdf")[0]
+    camera = sphere.render_camera()
+    as_rendered = PastedView(image=view.image, position=box_centre(view.box), scale=1.0,
+                             inplane=0.0, box=tuple(view.box), occluded_fraction=0.0)
+    np.testing.assert_allclose(sphere.true_translation(view, as_rendered, camera), view.origin,
+                               atol=1e-12)
+    # Pasted half as large with its box centre 10 px to the right: twice as far, its
+    # image half as far from the box centre.
+    centre = np.asarray(box_centre(view.box))
+    moved = PastedView(image=view.image, position=tuple(centre + (10, 0)), scale=0.5,
+                       inplane=0.0, box=tuple(view.box), occluded_fraction=0.0)
+    u, v = centre + (10, 0) + 0.5 * (camera.project(view.origin) - centre)
+    np.testing.assert_allclose(sphere.true_translation(view, moved, camera),
+                               camera.ray_point(u, v, 2 * view.origin[2]), atol=1e-12)
+
+
 def test_summary_counts_a_missed_image_as_180_degrees_and_no_translation():
     recs = [{"rotation_deg": 5.0, "translation_pct": 1.0, "detected": True, "seconds": 1.0},
             {"rotation_deg": 180.0, "translation_pct": None, "detected": False, "seconds": 3.0}]

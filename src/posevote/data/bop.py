@@ -35,7 +35,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from posevote.camera import Camera, object_height_from_distances
+from posevote.camera import Camera, object_height_from_distances, origin_depth_factors
 from posevote.data.training_set import TrainingSet
 from posevote.geometry import pose_from_rotation
 
@@ -197,16 +197,14 @@ def read_bop_scene(scene: str | Path, *, obj_id: int, min_visible: float = 0.1) 
             im_ids.append(int(key))
             rots.append(R)
             trans.append(t)
-            origins.append([camera.fx * t[0] / t[2] + camera.cx,
-                            camera.fy * t[1] / t[2] + camera.cy])
+            origins.append(camera.project(t))
     if not images:
         raise ValueError(f"{folder}: no visible annotation of object {obj_id}")
     heights, depths = np.array(boxes)[:, 3], np.array(dists)
-    fy = np.array([c.fy for c in cameras])
-    # Each origin's depth over the depth the model gives its view at its training size,
-    # fy * H / R (H from these views, R their median box height: one instance).
-    factor = depths * np.median(heights) / (fy * object_height_from_distances(heights, depths,
-                                                                             cameras))
+    # H from these views, R their median box height (one instance).
+    factor = origin_depth_factors(depths, cameras, reference_size_px=float(np.median(heights)),
+                                  object_height_m=object_height_from_distances(heights, depths,
+                                                                               cameras))
     ts = TrainingSet(images=tuple(images), poses=np.array(poses, dtype=np.float64),
                      boxes=np.array(boxes), masks=tuple(masks),
                      instances=(f"obj{obj_id}",) * len(images), distances=depths,
