@@ -4,6 +4,7 @@ import json
 import pytest
 from click.testing import CliRunner
 
+from posevote import PoseEstimator
 from posevote.cli import cli
 from posevote.evaluation import sphere
 from posevote.evaluation.sphere import SphereSetup, run_sphere, summarize
@@ -35,6 +36,9 @@ def test_run_writes_the_report_and_is_reproducible(tmp_path):
     assert [r["seed"] for r in records] == setup.seeds()
     assert all(0 <= r["rotation_deg"] <= 180 and r["translation_pct"] >= 0 for r in records)
     assert "rotation median" in (tmp_path / "a" / "report.md").read_text()
+    # t_cam_obj names the mesh origin: each training view's, with its depth factor.
+    origins = PoseEstimator.load(tmp_path / "a" / "model.npz").model_.view_origin
+    assert origins is not None and origins.shape == (summary["n_training_views"], 3)
     run_sphere(setup, tmp_path / "b")
     again = [json.loads(line) for line in
              (tmp_path / "b" / "records.jsonl").read_text().splitlines()]
