@@ -36,9 +36,11 @@ def test_run_writes_the_report_and_is_reproducible(tmp_path):
     assert [r["seed"] for r in records] == setup.seeds()
     assert all(0 <= r["rotation_deg"] <= 180 and r["translation_pct"] >= 0 for r in records)
     assert "rotation median" in (tmp_path / "a" / "report.md").read_text()
-    # t_cam_obj names the mesh origin: each training view's, with its depth factor.
+    # t_cam_obj names the mesh origin, learnt in each training view with its depth factor:
+    # on black within 4% of its depth (the box centre's point lies 4-9% off in these two).
     origins = PoseEstimator.load(tmp_path / "a" / "model.npz").model_.view_origin
     assert origins is not None and origins.shape == (summary["n_training_views"], 3)
+    assert all(r["translation_pct"] < 4.0 for r in records)
     run_sphere(setup, tmp_path / "b")
     again = [json.loads(line) for line in
              (tmp_path / "b" / "records.jsonl").read_text().splitlines()]
