@@ -168,13 +168,17 @@ def object_height_from_distances(box_heights_px: ArrayLike, distances_m: ArrayLi
                          f"views, {d.size} distances)")
     if not (np.all(np.isfinite(d)) and np.all(d > 0)):
         raise ValueError("distances_m must be positive, finite numbers of metres")
-    fy = (np.full(len(h), camera.fy) if isinstance(camera, Camera)
-          else np.array([c.fy for c in camera], dtype=np.float64))
+    fy = _focal_y(camera, len(h))
     if fy.shape != h.shape:
         raise ValueError(f"camera: one camera per training view needed ({len(h)} views, "
                          f"{len(fy)} cameras)")
     return float(np.median(h * d / fy))
 
+
+def _focal_y(camera: Camera | Sequence[Camera], n: int) -> NDArray[np.float64]:
+    """``fy`` of each of ``n`` views: one camera's for all, or each view's camera's."""
+    return (np.full(n, camera.fy) if isinstance(camera, Camera)
+            else np.array([c.fy for c in camera], dtype=np.float64))
 
 
 def origin_depth_factors(depths_m: ArrayLike, camera: Camera | Sequence[Camera], *,
@@ -204,9 +208,8 @@ def origin_depth_factors(depths_m: ArrayLike, camera: Camera | Sequence[Camera],
     ndarray, shape (K,)
     """
     d = np.asarray(depths_m, dtype=np.float64).reshape(-1)
-    fy = (np.full(len(d), camera.fy) if isinstance(camera, Camera)
-          else np.array([c.fy for c in camera], dtype=np.float64))
-    return d * float(reference_size_px) / (fy * float(object_height_m))
+    return d * float(reference_size_px) / (_focal_y(camera, len(d)) * float(object_height_m))
+
 
 def check_object_height(value: Any) -> float | None:
     """``object_height_m`` as a float, or None; refused unless positive and finite (metres)."""

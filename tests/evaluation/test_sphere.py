@@ -1,6 +1,7 @@
 import functools
 import json
 
+import numpy as np
 import pytest
 from click.testing import CliRunner
 
@@ -8,6 +9,8 @@ from posevote import PoseEstimator
 from posevote.cli import cli
 from posevote.evaluation import sphere
 from posevote.evaluation.sphere import SphereSetup, run_sphere, summarize
+from posevote.evaluation.synthetic import PastedView
+from posevote.geometry import box_centre
 
 pytest.importorskip("pybullet")
 
@@ -50,11 +53,6 @@ def test_run_writes_the_report_and_is_reproducible(tmp_path):
 
 
 def test_the_true_translation_is_the_mesh_origin():
-    import numpy as np
-
-    from posevote.evaluation.synthetic import PastedView
-    from posevote.geometry import box_centre
-
     view = sphere._render(np.array([0.6]), 20.0, "r2d2.urdf")[0]
     camera = sphere.render_camera()
     as_rendered = PastedView(image=view.image, position=box_centre(view.box), scale=1.0,
