@@ -35,7 +35,7 @@ import io
 import json
 import time
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -197,8 +197,8 @@ def estimate_record(model_path: str, setup: SphereSetup, seed: int) -> dict[str,
         pasted = paste_on_clutter(view.image, view.box, rng=rng, canvas_shape=CANVAS,
                                   scale_range=SCALE_RANGE, mask=view.mask)
         shape = CANVAS
-    focal = render_focal(SIZE)
-    camera = Camera(fx=focal, fy=focal, cx=(shape[1] - 1) / 2.0, cy=(shape[0] - 1) / 2.0)
+    # The renderer's lens over the canvas: its centre moves, its focal length does not.
+    camera = replace(render_camera(), cx=(shape[1] - 1) / 2.0, cy=(shape[0] - 1) / 2.0)
     if setup.known_depths:
         depths = (view.distance / SCALE_RANGE[1], view.distance / SCALE_RANGE[0])
         est.set_params(search__scale_range=scale_range_for_depths(
