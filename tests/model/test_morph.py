@@ -12,24 +12,37 @@ from posevote.inference.search import viewpoint_features
 from posevote.model.morph import (
     ViewCrops,
     morphed_positions,
-    turntable_neighbours,
+    view_neighbours,
     view_shifts,
 )
 
 
-def test_turntable_neighbours_pairs_views_of_one_instance():
+def test_view_neighbours_pairs_views_of_one_instance():
     az = np.radians([0.0, 40.0, 20.0, 340.0, 0.0, 180.0, 100.0])
     el = np.zeros(7)
     inst = np.array([0, 0, 0, 0, 1, 1, 2])
-    nb = turntable_neighbours(az, el, inst)
+    nb = view_neighbours(az, el, inst)
     # Instance 0 is a closed turntable 340, 0, 20, 40 with a gap 40 -> 340 too wide.
     assert nb[:4].tolist() == [[2, 3], [-1, 2], [1, 0], [0, -1]]
     # Half a turn apart is too far to morph; a lone view has no neighbour.
     assert nb[4:].tolist() == [[-1, -1], [-1, -1], [-1, -1]]
 
 
-def test_views_at_other_elevations_are_not_a_turntable():
-    nb = turntable_neighbours(np.radians([0.0, 20.0]), np.radians([0.0, 10.0]), np.zeros(2, int))
+def test_views_over_the_sphere_pair_along_their_ring_and_their_column():
+    # Three rings of four azimuths: columns 0/1 along the ring (closed), 2/3 along the
+    # column of equal azimuth (open at the lowest and highest elevations).
+    az = np.radians(np.tile([0.0, 30.0, 60.0, 90.0], 3))
+    el = np.radians(np.repeat([0.0, 20.0, 40.0], 4))
+    nb = view_neighbours(az, el, np.zeros(12, int))
+    assert nb.shape == (12, 4)
+    assert nb[5].tolist() == [6, 4, 9, 1]
+    # 90 -> 0 is a 270-degree gap: too far; the top ring has no view above.
+    assert nb[11].tolist() == [-1, 10, -1, 7]
+    assert nb[0].tolist() == [1, -1, 4, -1]
+
+
+def test_scattered_views_have_no_neighbours():
+    nb = view_neighbours(np.radians([0.0, 20.0]), np.radians([0.0, 10.0]), np.zeros(2, int))
     assert (nb == -1).all()
 
 
@@ -75,6 +88,23 @@ def test_morphed_positions_move_in_proportion_to_the_azimuth():
     # Beyond the neighbour the features stay where the neighbour is.
     assert morphed_positions(xy, shift, view, np.radians(30.0), view_az, nb)[0] == \
         pytest.approx([4.0, 0.0])
+
+
+def test_morphed_positions_over_the_sphere_add_the_elevation_move():
+    xy = np.zeros((1, 2))
+    shift = np.zeros((1, 4, 2))
+    shift[0] = [[4.0, 0.0], [0.0, 0.0], [0.0, 6.0], [0.0, -6.0]]
+    view_az, view_el = np.radians([0.0, 20.0, 0.0]), np.radians([0.0, 0.0, 30.0])
+    nb = np.array([[1, -1, 2, -1], [-1, 0, -1, -1], [-1, -1, -1, 0]])
+    moved = morphed_positions(xy, shift, np.array([0]), np.radians(5.0), view_az, nb,
+                              elevation=np.radians(10.0), view_elevation=view_el)
+    assert moved[0] == pytest.approx([1.0, 2.0])
+    # Below the lowest ring there is no neighbour to move toward.
+    below = morphed_positions(xy, shift, np.array([0]), 0.0, view_az, nb,
+                              elevation=np.radians(-10.0), view_elevation=view_el)
+    assert below[0] == pytest.approx([0.0, 0.0])
+    with pytest.raises(ValueError, match="view_elevation"):
+        morphed_positions(xy, shift, np.array([0]), 0.0, view_az, nb)
 
 
 def _distance(model_feats, truth: np.ndarray) -> float:

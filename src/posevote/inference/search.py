@@ -441,7 +441,8 @@ def viewpoint_features(model: PoseModel, azimuth: float, elevation: float, *,
     xy = model.xy[idx]
     if model.shift is not None and model.view_neighbour is not None:
         xy = morphed_positions(xy, model.shift[idx], model.view[idx], azimuth,
-                               model.view_azimuth, model.view_neighbour)
+                               model.view_azimuth, model.view_neighbour, elevation=elevation,
+                               view_elevation=model.view_elevation)
     return ViewpointFeatures(xy=xy, theta=model.theta[idx],
                              weight=w / total if total > 0 else w,
                              box=np.average(model.view_box[views], axis=0, weights=k1[views]))

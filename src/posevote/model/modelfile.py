@@ -287,9 +287,11 @@ def _build(path: Path, arrays: dict[str, np.ndarray], header: dict[str, Any]) ->
                  and all(np.issubdtype(arrays[n].dtype, np.number) for n in _ARRAYS))
     shift, neighbour = arrays.get("shift"), arrays.get("view_neighbour")
     if shift is not None or neighbour is not None:
-        # The morphing arrays come together, one displacement pair per feature.
+        # The morphing arrays come together, one displacement per feature and neighbour
+        # (two on a turntable, four over the sphere).
         shapes_ok = (shapes_ok and shift is not None and neighbour is not None
-                     and shift.shape == (m, 2, 2) and neighbour.shape == (k, 2)
+                     and neighbour.ndim == 2 and neighbour.shape[0] == k
+                     and neighbour.shape[1] in (2, 4) and shift.shape == (m, neighbour.shape[1], 2)
                      and bool(np.all(np.isfinite(shift)))
                      and bool(np.all((neighbour >= -1) & (neighbour < k))))
     origin = arrays.get("view_origin")

@@ -1,4 +1,4 @@
-"""Feature morphing between neighbouring turntable views (beyond the paper).
+"""Feature morphing between neighbouring training views (beyond the paper).
 
 The paper's density psi blends the features of the training views near a
 viewpoint, each feature staying where it was in its own view. Between two
@@ -32,10 +32,11 @@ from posevote.geometry import angle_difference
 MAX_GAP = np.radians(45.0)
 
 
-def turntable_neighbours(view_azimuth: NDArray[np.float64], view_elevation: NDArray[np.float64],
-                         view_instance: NDArray[np.int64], *, max_gap: float = MAX_GAP
-                         ) -> NDArray[np.int64]:
-    """The next and previous view in azimuth of each view, within its instance.
+def view_neighbours(view_azimuth: NDArray[np.float64], view_elevation: NDArray[np.float64],
+                    view_instance: NDArray[np.int64], *, max_gap: float = MAX_GAP
+                    ) -> NDArray[np.int64]:
+    """The next and previous view of each view in azimuth (and, over the sphere, in
+    elevation), within its instance.
 
     Parameters
     ----------
@@ -48,24 +49,35 @@ def turntable_neighbours(view_azimuth: NDArray[np.float64], view_elevation: NDAr
 
     Returns
     -------
-    ndarray of int, shape (K, 2)
-        Column 0 the next view (increasing azimuth), column 1 the previous
-        one; -1 where there is none. Instances whose views do not share one
-        elevation (not a turntable) get none.
+    ndarray of int, shape (K, 2) or (K, 4)
+        Column 0 the next view in azimuth at the view's elevation (its ring),
+        column 1 the previous one; where an instance's views lie at several
+        elevations, columns 2 and 3 the next and previous view in elevation
+        at the view's azimuth. -1 where there is none.
     """
     k = len(view_azimuth)
-    out = np.full((k, 2), -1, dtype=np.int64)
-    for inst in np.unique(view_instance):
-        views = np.flatnonzero(view_instance == inst)
-        if len(views) < 2 or np.ptp(view_elevation[views]) > 1e-6:
-            continue
-        order = views[np.argsort(np.mod(view_azimuth[views], 2 * np.pi), kind="stable")]
-        for i, v in enumerate(order):
-            for col, step in ((0, 1), (1, -1)):
-                n = order[(i + step) % len(order)]
-                gap = abs(float(angle_difference(view_azimuth[n], view_azimuth[v])))
-                if n != v and 1e-9 < gap <= max_gap:
-                    out[v, col] = n
+    az = np.mod(np.asarray(view_azimuth, dtype=np.float64), 2 * np.pi)
+    el = np.asarray(view_elevation, dtype=np.float64)
+    sphere = any(np.ptp(el[view_instance == i]) > 1e-6 for i in np.unique(view_instance))
+    out = np.full((k, 4 if sphere else 2), -1, dtype=np.int64)
+    # Rings share an instance and an elevation; columns an instance and an azimuth.
+    for cols, same, along in (((0, 1), el, az), ((2, 3), az, el))[:2 if sphere else 1]:
+        for inst in np.unique(view_instance):
+            views = np.flatnonzero(view_instance == inst)
+            for key in np.unique(np.round(same[views], 6)):
+                line = views[np.abs(same[views] - key) < 1e-6]
+                order = line[np.argsort(along[line], kind="stable")]
+                ring = cols == (0, 1)
+                for i, v in enumerate(order):
+                    for col, step in zip(cols, (1, -1)):
+                        j = i + step
+                        if not ring and not 0 <= j < len(order):
+                            continue
+                        n = order[j % len(order)]
+                        gap = abs(float(angle_difference(along[n], along[v]))) if ring \
+                            else abs(float(along[n] - along[v]))
+                        if n != v and 1e-9 < gap <= max_gap:
+                            out[v, col] = n
     return out
 
 
@@ -130,7 +142,7 @@ def view_shifts(view_features: Sequence[EdgeFeatures], crops: ViewCrops,
                 neighbours: NDArray[np.int64], *, centers: NDArray[np.float64],
                 scales: NDArray[np.float64], inplanes: NDArray[np.float64]
                 ) -> NDArray[np.float64]:
-    """Where each training feature moves to in its view's two neighbours.
+    """Where each training feature moves to in each of its view's neighbours.
 
     Parameters
     ----------
@@ -139,25 +151,25 @@ def view_shifts(view_features: Sequence[EdgeFeatures], crops: ViewCrops,
         :func:`posevote.model.density.build_model`, in the same order).
     crops : ViewCrops
         The views' crops, in the same order.
-    neighbours : ndarray of int, shape (K, 2)
-        From :func:`turntable_neighbours`.
+    neighbours : ndarray of int, shape (K, C)
+        From :func:`view_neighbours`.
     centers, scales, inplanes
         Each view's reference point, scale and in-plane angle, as for
         :func:`posevote.model.density.build_model`.
 
     Returns
     -------
-    ndarray, shape (M, 2, 2)
+    ndarray, shape (M, C, 2)
         For every model feature (views concatenated in order), its
-        displacement in model units toward the next view (``[:, 0]``) and
-        the previous one (``[:, 1]``); zero where a view has no neighbour.
+        displacement in model units toward each neighbour (``[:, c]`` toward
+        ``neighbours[:, c]``); zero where a view has no neighbour.
     """
     out = []
     for k, feats in enumerate(view_features):
         here = normalize_features(feats, center=centers[k], scale=float(scales[k]),
                                   inplane=float(inplanes[k])).xy
-        shift = np.zeros((len(feats), 2, 2))
-        for col in (0, 1):
+        shift = np.zeros((len(feats), neighbours.shape[1], 2))
+        for col in range(neighbours.shape[1]):
             n = int(neighbours[k, col])
             if n < 0 or len(feats) == 0:
                 continue
@@ -168,41 +180,57 @@ def view_shifts(view_features: Sequence[EdgeFeatures], crops: ViewCrops,
                                        inplane=float(inplanes[n])).xy
             shift[:, col] = there - here
         out.append(shift)
-    return np.concatenate(out) if out else np.zeros((0, 2, 2))
+    return np.concatenate(out) if out else np.zeros((0, neighbours.shape[1], 2))
 
 
 def morphed_positions(xy: NDArray[np.float64], shift: NDArray[np.float64],
                       view: NDArray[np.int64], azimuth: float,
-                      view_azimuth: NDArray[np.float64], neighbours: NDArray[np.int64]
-                      ) -> NDArray[np.float64]:
-    """Feature positions moved toward the viewpoint ``azimuth``.
+                      view_azimuth: NDArray[np.float64], neighbours: NDArray[np.int64], *,
+                      elevation: float = 0.0,
+                      view_elevation: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
+    """Feature positions moved toward the viewpoint ``(azimuth, elevation)``.
 
     A feature of view ``k`` at ``azimuth`` between ``k`` and its neighbour
     ``n`` moves by the fraction ``(azimuth - az_k) / (az_n - az_k)`` (at most
-    1) of its displacement toward ``n``.
+    1) of its displacement toward ``n``; over the sphere it also moves so
+    toward its neighbour in elevation (the two moves add: a first-order
+    picture of the object between four views).
 
     Parameters
     ----------
     xy : ndarray, shape (N, 2)
         Model positions of the features.
-    shift : ndarray, shape (N, 2, 2)
+    shift : ndarray, shape (N, C, 2)
         Their displacements (:func:`view_shifts`).
     view : ndarray of int, shape (N,)
         Their views.
     azimuth : float
-        The viewpoint, radians.
+        The viewpoint's azimuth, radians.
     view_azimuth : ndarray, shape (K,)
         Azimuth of every view.
-    neighbours : ndarray of int, shape (K, 2)
-        From :func:`turntable_neighbours`.
+    neighbours : ndarray of int, shape (K, C)
+        From :func:`view_neighbours`.
+    elevation : float, optional
+        The viewpoint's elevation, radians (read where ``C`` is 4).
+    view_elevation : ndarray, shape (K,), optional
+        Elevation of every view (needed where ``C`` is 4).
 
     Returns
     -------
     ndarray, shape (N, 2)
     """
-    delta = angle_difference(azimuth, view_azimuth[view])
-    col = np.where(delta >= 0, 0, 1)
-    n = neighbours[view, col]
-    gap = np.abs(angle_difference(view_azimuth[np.maximum(n, 0)], view_azimuth[view]))
-    frac = np.where(n >= 0, np.clip(np.abs(delta) / np.maximum(gap, 1e-12), 0.0, 1.0), 0.0)
-    return xy + frac[:, None] * shift[np.arange(len(view)), col]
+    rows = np.arange(len(view))
+    moves = [(angle_difference(azimuth, view_azimuth[view]), view_azimuth, 0, True)]
+    if neighbours.shape[1] == 4:
+        if view_elevation is None:
+            raise ValueError("a model morphed over the sphere needs view_elevation")
+        moves.append((elevation - view_elevation[view], view_elevation, 2, False))
+    out = np.array(xy, dtype=np.float64, copy=True)
+    for delta, angles, first, ring in moves:
+        col = np.where(delta >= 0, first, first + 1)
+        n = neighbours[view, col]
+        there = angles[np.maximum(n, 0)]
+        gap = np.abs(angle_difference(there, angles[view]) if ring else there - angles[view])
+        frac = np.where(n >= 0, np.clip(np.abs(delta) / np.maximum(gap, 1e-12), 0.0, 1.0), 0.0)
+        out += frac[:, None] * shift[rows, col]
+    return out

@@ -206,5 +206,5 @@ def prune_model(model: PoseModel, preset: PruningPreset, *, position_sigma: floa
     if model.shift is not None:
         # A centre moves as its members do (they come from nearby views).
         fields["shift"] = np.stack([np.column_stack([mean(model.shift[:, c, d]) for d in (0, 1)])
-                                    for c in (0, 1)], axis=1)
+                                    for c in range(model.shift.shape[1])], axis=1)
     return PoseModel(**fields)

@@ -34,7 +34,7 @@ from posevote.geometry import box_centre
 from posevote.model.appearance import AppearanceCollector, AppearanceModel
 from posevote.model.density import PoseModel, build_model, viewpoint_kappa
 from posevote.model.kernels import ORIENTATION_KAPPA, KernelOptions
-from posevote.model.morph import ViewCrops, turntable_neighbours, view_shifts
+from posevote.model.morph import ViewCrops, view_neighbours, view_shifts
 from posevote.model.outline import OUTLINE_ANGLES, box_outline, mask_outline
 from posevote.model.pruning import PruningPreset, prune_model
 from posevote.model.templates import TEMPLATE_SIDE, view_template
@@ -338,7 +338,7 @@ def _pool(views: _Views, *, category: str, kernel: KernelOptions, prune: Pruning
     if views.outlines is not None:
         model = replace(model, view_outline=views.outlines / scales[:, None])
     if crops is not None:
-        neighbours = turntable_neighbours(model.view_azimuth, model.view_elevation,
+        neighbours = view_neighbours(model.view_azimuth, model.view_elevation,
                                           model.view_instance)
         model = replace(model, view_neighbour=neighbours, shift=view_shifts(
             feats, crops, neighbours, centers=centres, scales=scales, inplanes=pose_arr[:, 2]))
