@@ -81,9 +81,10 @@ class PoseEstimator(GroupedParams):
         :func:`posevote.refinement.local.local_refine`).
     morph_views : bool, default False
         Training: measure by optical flow where each feature moves to in the
-        neighbouring turntable views, so that features between training
-        views move with the object (beyond the paper; :mod:`posevote.model.morph`).
-        Probe the gaps too (``SearchOptions(viewpoint_subdivisions=2)``).
+        neighbouring views (in azimuth; over a sphere of views also in
+        elevation), so that features between training views move with the
+        object (beyond the paper; :mod:`posevote.model.morph`). Probe the
+        gaps too (``SearchOptions(viewpoint_subdivisions=2)``).
     edges : EdgeOptions
         Edge extraction (:class:`posevote.features.edges.EdgeOptions`).
     kernel : KernelOptions

@@ -52,6 +52,17 @@ def test_run_writes_the_report_and_is_reproducible(tmp_path):
         [{k: v for k, v in r.items() if k not in drop} for r in again]
 
 
+def test_the_models_in_clutter_are_morphed_over_the_sphere():
+    # In clutter each view moves toward its neighbours along its ring and its column;
+    # on black (the default preset) the views are not morphed.
+    cluttered = sphere.train(SphereSetup(elevations_deg=(0.0, 30.0)))
+    n = 2 * 360 // sphere.AZIMUTH_STEP_DEG
+    assert cluttered.morph_views and cluttered.model_.view_neighbour.shape == (n, 4)
+    assert (cluttered.model_.view_neighbour[:, :2] >= 0).all()
+    assert cluttered.model_.shift.shape == (cluttered.model_.n_features, 4, 2)
+    assert sphere.train(SphereSetup(**_SMALL)).model_.shift is None
+
+
 def test_the_true_translation_is_the_mesh_origin():
     view = sphere._render(np.array([0.6]), 20.0, "r2d2.urdf")[0]
     camera = sphere.render_camera()

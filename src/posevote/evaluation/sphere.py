@@ -6,8 +6,8 @@ every :data:`AZIMUTH_STEP_DEG` at the elevations :data:`ELEVATIONS_DEG`
 (468 views), on black, with their masks and the image and depth of the
 mesh's origin (``fit(..., origins=)``, so that ``t_cam_obj`` names the mesh
 origin, as a robot needs, not the box centre), their features morphed
-toward the neighbouring views in azimuth and elevation
-(``morph_views``, :mod:`posevote.model.morph`); the object's height in
+toward the neighbouring views in azimuth and elevation for the tests in
+clutter (``morph_views``, :mod:`posevote.model.morph`); the object's height in
 metres is learnt from the training distances
 (:func:`posevote.camera.object_height_from_distances`). Test: views at
 random azimuths and elevations between the extreme training elevations, so
@@ -156,10 +156,11 @@ def train(setup: SphereSetup) -> PoseEstimator:
     factors = origin_depth_factors([v.origin[2] for v in views], camera, object_height_m=height,
                                    reference_size_px=float(np.median(heights)))
     origins = np.column_stack([[camera.project(v.origin) for v in views], factors])
-    # Morphed between the grid's neighbours, the model between views moves as the object
-    # does (chosen on the development seeds 1-8: docs/DEFAULTS.md).
-    est = PoseEstimator.from_preset(setup.preset,
-                                    **{"min_score": 0.0, "morph_views": True, **setup.params})
+    # In clutter, morphed between the grid's neighbours the model between views moves as
+    # the object does (chosen on the development seeds 1-8; on black it lost: DEFAULTS.md).
+    est = PoseEstimator.from_preset(setup.preset, **{"min_score": 0.0,
+                                                     "morph_views": not setup.clean,
+                                                     **setup.params})
     return est.fit([v.image for v in views], np.array(poses), boxes=[v.box for v in views],
                    masks=[v.mask for v in views], object_height_m=height, origins=origins)
 
@@ -258,8 +259,9 @@ def report_text(setup: SphereSetup, summary: dict[str, Any], n_views: int) -> st
     return (f"# rendered-sphere: {setup.mesh}\n\n"
             f"{n_views} training views (azimuth every {AZIMUTH_STEP_DEG} deg at elevations "
             f"{', '.join(f'{e:g}' for e in setup.elevations_deg)} deg); {summary['n']} test views "
-            f"at random azimuths and elevations, {where}; preset `{setup.preset}` with the "
-            "features morphed between neighbouring views, overrides "
+            f"at random azimuths and elevations, {where}; preset `{setup.preset}`"
+            f"{'' if setup.clean else ' with the features morphed between neighbouring views'}"
+            ", overrides "
             f"{dict(setup.params) or 'none'}{told}; seed {setup.seed}. The translation error is "
             "`t_cam_obj`'s distance from the mesh origin (learnt in each training view).\n\n"
             f"| rotation median ° | rotation mean ° | % < 10° | % < 30° | flips % (> {FLIP_DEG:g}°) "

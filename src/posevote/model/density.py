@@ -61,12 +61,12 @@ class PoseModel:
         Each instance's median training box height over ``reference_size``:
         the scale at which the model matches the instance at its training
         size (empty: all 1).
-    shift : ndarray, shape (M, 2, 2), or None
-        Each feature's displacement toward the next and the previous view
-        of its turntable (:mod:`posevote.model.morph`); None: not measured.
-    view_neighbour : ndarray of int, shape (K, 2), or None
-        Each view's next and previous view on its turntable (-1: none);
-        present with ``shift``.
+    shift : ndarray, shape (M, C, 2), or None
+        Each feature's displacement toward each neighbour of its view
+        (:mod:`posevote.model.morph`); None: not measured.
+    view_neighbour : ndarray of int, shape (K, C), or None
+        Each view's next and previous view in azimuth (C = 2), and over the
+        sphere in elevation too (C = 4) (-1: none); present with ``shift``.
     view_origin : ndarray, shape (K, 2) or (K, 3), or None
         Where the object's origin (the point ``t_cam_obj`` names, e.g. a
         mesh origin) lies in each view, from its reference point, reference

@@ -8,12 +8,13 @@ explained at either training view, which pulls estimates toward them and
 lets the in-plane angle, scale and position lean toward one neighbour.
 
 Here every training feature also carries where it moves to in each
-neighbouring view of the same instance on the turntable (the view next in
-azimuth, either way), measured by dense optical flow between the two
-training images (OpenCV's DIS flow). Between views a feature is moved along
-that displacement in proportion to the azimuth travelled toward the
-neighbour (:func:`morphed_positions`), so that the blend at any azimuth is a
-plausible picture of the object there.
+neighbouring view of the same instance (the view next in azimuth, either
+way, at its elevation; over a sphere of views also the view next in
+elevation, either way, at its azimuth), measured by dense optical flow
+between the two training images (OpenCV's DIS flow). Between views a
+feature is moved along those displacements in proportion to the angle
+travelled toward each neighbour (:func:`morphed_positions`), so that the
+blend at any viewpoint is a plausible picture of the object there.
 """
 
 from __future__ import annotations
@@ -60,25 +61,34 @@ def view_neighbours(view_azimuth: NDArray[np.float64], view_elevation: NDArray[n
     el = np.asarray(view_elevation, dtype=np.float64)
     sphere = any(np.ptp(el[view_instance == i]) > 1e-6 for i in np.unique(view_instance))
     out = np.full((k, 4 if sphere else 2), -1, dtype=np.int64)
-    # Rings share an instance and an elevation; columns an instance and an azimuth.
-    for cols, same, along in (((0, 1), el, az), ((2, 3), az, el))[:2 if sphere else 1]:
-        for inst in np.unique(view_instance):
-            views = np.flatnonzero(view_instance == inst)
-            for key in np.unique(np.round(same[views], 6)):
-                line = views[np.abs(same[views] - key) < 1e-6]
-                order = line[np.argsort(along[line], kind="stable")]
-                ring = cols == (0, 1)
-                for i, v in enumerate(order):
-                    for col, step in zip(cols, (1, -1)):
-                        j = i + step
-                        if not ring and not 0 <= j < len(order):
-                            continue
-                        n = order[j % len(order)]
-                        gap = abs(float(angle_difference(along[n], along[v]))) if ring \
-                            else abs(float(along[n] - along[v]))
-                        if n != v and 1e-9 < gap <= max_gap:
-                            out[v, col] = n
+    for inst in np.unique(view_instance):
+        views = np.flatnonzero(view_instance == inst)
+        # A ring shares an elevation and closes; a column shares an azimuth and does not.
+        for level in np.unique(np.round(el[views], 6)):
+            _pair_along(out, views[np.abs(el[views] - level) < 1e-6], az, (0, 1),
+                        closed=True, max_gap=max_gap)
+        if sphere:
+            for heading in np.unique(np.round(az[views], 6)):
+                _pair_along(out, views[np.abs(az[views] - heading) < 1e-6], el, (2, 3),
+                            closed=False, max_gap=max_gap)
     return out
+
+
+def _pair_along(out: NDArray[np.int64], line: NDArray[np.int64], angle: NDArray[np.float64],
+                cols: tuple[int, int], *, closed: bool, max_gap: float) -> None:
+    """Write into ``out[:, cols]`` each view's next and previous view of ``line`` in
+    ``angle`` (a circle when ``closed``), where the gap is at most ``max_gap``."""
+    order = line[np.argsort(angle[line], kind="stable")]
+    for i, v in enumerate(order):
+        for col, step in zip(cols, (1, -1), strict=True):
+            j = i + step
+            if not (closed or 0 <= j < len(order)):
+                continue
+            n = order[j % len(order)]
+            gap = abs(float(angle_difference(angle[n], angle[v]) if closed
+                            else angle[n] - angle[v]))
+            if n != v and 1e-9 < gap <= max_gap:
+                out[v, col] = n
 
 
 def _window(box: NDArray[np.float64], shape: tuple[int, int], margin: float

@@ -3,8 +3,8 @@
 :func:`train_model` reads each training image once: its edges inside the
 object's box (and mask), its grey template when the template re-ranking is
 wanted (:mod:`posevote.model.templates`), its appearance descriptors when
-the appearance stages are, and its crop for the morphing between turntable
-views;
+the appearance stages are, and its crop for the morphing between
+neighbouring views;
 then it builds psi (:func:`posevote.model.density.build_model`), weighs the
 features (Eq. 4) and prunes the pooled model (Sec. III-A).
 """
@@ -174,7 +174,7 @@ def train_model(images: Sequence[str | Path | NDArray], poses: ArrayLike, *,
     kernel : KernelOptions
         Kernel widths (the weights of Eq. 4 and the pose kernel K1).
     morph : bool
-        Measure the features' motion between neighbouring turntable views.
+        Measure the features' motion between neighbouring views.
     prune : PruningPreset or None
         Prune the pooled model with these knobs.
     appearance : bool
