@@ -129,6 +129,13 @@ class SphereSetup:
         """The preset the model starts from."""
         return "default" if self.clean else "cluttered"
 
+    @property
+    def morphed(self) -> bool:
+        """Whether the training views' features are morphed toward their neighbours: in
+        clutter, where it was chosen on the development seeds 1-8; on black it lost
+        (docs/DEFAULTS.md)."""
+        return not self.clean
+
     def seeds(self) -> list[int]:
         """The seed of every test image."""
         return [self.seed * 100_000 + i for i in range(self.n_images)]
@@ -156,10 +163,9 @@ def train(setup: SphereSetup) -> PoseEstimator:
     factors = origin_depth_factors([v.origin[2] for v in views], camera, object_height_m=height,
                                    reference_size_px=float(np.median(heights)))
     origins = np.column_stack([[camera.project(v.origin) for v in views], factors])
-    # In clutter, morphed between the grid's neighbours the model between views moves as
-    # the object does (chosen on the development seeds 1-8; on black it lost: DEFAULTS.md).
+    # Morphed between the grid's neighbours, the model between views moves as the object does.
     est = PoseEstimator.from_preset(setup.preset, **{"min_score": 0.0,
-                                                     "morph_views": not setup.clean,
+                                                     "morph_views": setup.morphed,
                                                      **setup.params})
     return est.fit([v.image for v in views], np.array(poses), boxes=[v.box for v in views],
                    masks=[v.mask for v in views], object_height_m=height, origins=origins)
@@ -260,7 +266,7 @@ def report_text(setup: SphereSetup, summary: dict[str, Any], n_views: int) -> st
             f"{n_views} training views (azimuth every {AZIMUTH_STEP_DEG} deg at elevations "
             f"{', '.join(f'{e:g}' for e in setup.elevations_deg)} deg); {summary['n']} test views "
             f"at random azimuths and elevations, {where}; preset `{setup.preset}`"
-            f"{'' if setup.clean else ' with the features morphed between neighbouring views'}"
+            f"{' with the features morphed between neighbouring views' if setup.morphed else ''}"
             ", overrides "
             f"{dict(setup.params) or 'none'}{told}; seed {setup.seed}. The translation error is "
             "`t_cam_obj`'s distance from the mesh origin (learnt in each training view).\n\n"
