@@ -339,7 +339,7 @@ def _pool(views: _Views, *, category: str, kernel: KernelOptions, prune: Pruning
         model = replace(model, view_outline=views.outlines / scales[:, None])
     if crops is not None:
         neighbours = view_neighbours(model.view_azimuth, model.view_elevation,
-                                          model.view_instance)
+                                     model.view_instance)
         model = replace(model, view_neighbour=neighbours, shift=view_shifts(
             feats, crops, neighbours, centers=centres, scales=scales, inplanes=pose_arr[:, 2]))
     kappa = viewpoint_kappa(model, kernel.viewpoint_bandwidth_deg)
