@@ -41,6 +41,7 @@ import os
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -63,21 +64,37 @@ MORE_OBJECTS = (7, 24, 25, 26, 41, 47, 50, 55, 56, 57, 58, 60, 61, 68, 71, 72, 7
 HALF_TURN = {1, 31, 46, 54, 79, 96, 13, 22, 33, 64}  # boxes and flat bottles
 _ONE = {"search__viewpoint_subdivisions": 1}
 _MORPH = {"morph_views": True, "search__viewpoint_subdivisions": 2}
+# Each row: weights, fitting, the local refinement, and what else it sets.
 ROWS = {
-    "no weights": {"weights": False, "fitting": False, "local_refinement": False, **_ONE},
-    "weights": {"weights": True, "fitting": False, "local_refinement": False, **_ONE},
-    "weights + fitting": {"weights": True, "fitting": True, "local_refinement": False, **_ONE},
-    "+ local refinement": {"weights": True, "fitting": True, "local_refinement": True, **_ONE},
+    "no weights": (False, False, False, _ONE),
+    "weights": (True, False, False, _ONE),
+    "weights + fitting": (True, True, False, _ONE),
+    "+ local refinement": (True, True, True, _ONE),
     # Beyond the paper, not run by default: features morphed between views,
     # two probes per gap (posevote.model.morph; docs/DEFAULTS.md, "Morphing").
-    "weights + fitting + morphing": {"weights": True, "fitting": True,
-                                     "local_refinement": False, **_MORPH},
-    "+ local refinement + morphing": {"weights": True, "fitting": True,
-                                      "local_refinement": True, **_MORPH},
+    "weights + fitting + morphing": (True, True, False, _MORPH),
+    "+ local refinement + morphing": (True, True, True, _MORPH),
 }
 DEFAULT_ROWS = ("no weights", "weights", "weights + fitting", "+ local refinement")
 # Settings that act when the model is fitted: a row that sets them gets a model of its own.
 FIT_SETTINGS = ("morph_views",)
+
+
+def row_params(row: str, preset: str) -> dict:
+    """The row's settings over ``preset``: without fitting the modes are the best probes
+    and the rescale step is off; the local refinement fits the profile (polishes without
+    fitting); with the templates, the half-turn check and the share-scale step go with
+    the local refinement."""
+    weights, fit, local, extra = ROWS[row]
+    base = PoseEstimator.from_preset(preset)
+    templated = base.templates is not None
+    params = {"weights": weights, "refine": replace(
+        base.refine, fit=fit, rescale=fit and not local,
+        local=("profile" if fit else "polish") if local else None,
+        share_scale=templated and local), **extra}
+    if base.templates is not None:
+        params["templates"] = replace(base.templates, half_turn=local)
+    return params
 # Clean views start from the ``default`` preset, pasted views from ``cluttered``.
 
 
@@ -121,14 +138,15 @@ def run_split(obj: int, data: str, train_az: list[int], test_az: list[int], clut
         truth_scale = np.array([p.scale for p in pasted])
     models: dict[tuple, PoseEstimator] = {}
     train_s: list[float] = []
+    preset = "cluttered" if clutter else "default"
 
     def model_for(row: str) -> PoseEstimator:
         """The row's fitted estimator (one per distinct training-time setting)."""
-        fit = {k: v for k, v in ROWS[row].items() if k in FIT_SETTINGS and k not in params}
+        fit = {k: v for k, v in row_params(row, preset).items()
+               if k in FIT_SETTINGS and k not in params}
         key = tuple(sorted(fit.items()))
         if key not in models:
             t0 = time.perf_counter()
-            preset = "cluttered" if clutter else "default"
             # The object is in every test image: nothing is rejected (min_score 0).
             models[key] = PoseEstimator.from_preset(preset, **{"min_score": 0.0, **params,
                                                                **fit}).fit(
@@ -140,7 +158,7 @@ def run_split(obj: int, data: str, train_az: list[int], test_az: list[int], clut
     out: dict = {"object": obj}
     for row in rows:
         est = model_for(row)
-        est.set_params(**{k: v for k, v in ROWS[row].items()
+        est.set_params(**{k: v for k, v in row_params(row, preset).items()
                           if k not in params and k not in FIT_SETTINGS})
         errs, secs, pos_err, scale_err, inplane_err, prob = [], [], [], [], [], []
         for k, (img, pose) in enumerate(zip(images, test.poses, strict=True)):

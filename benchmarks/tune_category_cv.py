@@ -48,7 +48,7 @@ from posevote import PoseEstimator  # noqa: E402
 from posevote.data import read_coil  # noqa: E402
 from posevote.evaluation.protocols import COIL_CATEGORIES  # noqa: E402
 from posevote.evaluation.runner import pose_error_deg  # noqa: E402
-from posevote.refinement.instance import RecognitionOptions  # noqa: E402
+from posevote.recognition import RecognitionOptions
 
 
 def run(data: Path, params: dict) -> dict[str, tuple[float, float, float]]:

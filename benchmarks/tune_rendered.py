@@ -61,6 +61,7 @@ from posevote._io import atomic_write_text  # noqa: E402
 from posevote.evaluation.rendering import render_turntable  # noqa: E402
 from posevote.evaluation.synthetic import paste_on_clutter  # noqa: E402
 from posevote.geometry import angle_difference  # noqa: E402
+from posevote.refinement import RefineOptions  # noqa: E402
 
 #: (name, URDF in pybullet_data, rest orientation). The four named models and
 #: six of pybullet's random shapes, picked for having no rotational symmetry.
@@ -83,8 +84,10 @@ def run_object(obj: tuple[str, str, tuple[float, float, float]], params: dict, c
     azimuths = np.radians(np.arange(0, 360, STEP_DEG))
     views = render_turntable(azimuths, mesh=mesh, base_euler=euler, distance=None)
     train = views[::TRAIN_EVERY]
-    # In clutter: the cluttered preset's search, the local refinement only if asked for.
-    base = ("cluttered", {"local_refinement": False}) if clutter else ("default", {})
+    # In clutter: the cluttered preset's search and re-ranking; its local refinement (and the
+    # steps that go with it) only if asked for.
+    base = ("cluttered", {"refine": RefineOptions(), "templates__half_turn": False}) if clutter \
+        else ("default", {})
     base[1]["min_score"] = 0.0   # the object is in every test image
     estimator = PoseEstimator.from_preset(base[0], **{**base[1], **params}).fit(
         [v.image for v in train], [v.azimuth for v in train], boxes=[v.box for v in train],

@@ -553,7 +553,7 @@ def test_the_caller_says_the_channel_order(fitted_estimator, draw):
 
 
 def test_api_values(fitted_estimator):
-    from posevote.inference.search import SearchOptions
+    from posevote.inference.setup import SearchOptions
 
     with pytest.raises(ValueError, match="SearchOptions.scale_range"):
         SearchOptions(scale_range=(1.0, 1e6))

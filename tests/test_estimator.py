@@ -5,10 +5,11 @@ import numpy as np
 import pytest
 
 from posevote import NotFittedError, PoseEstimator
+from posevote.appearance import AppearanceOptions
 from posevote.geometry import angular_error
-from posevote.inference.search import SearchOptions
-from posevote.model.appearance import AppearanceOptions
-from posevote.refinement.instance import RecognitionOptions
+from posevote.inference.setup import SearchOptions
+from posevote.recognition import RecognitionOptions
+from posevote.refinement import RefineOptions
 
 
 def test_estimates_between_training_views(fitted_estimator, draw):
@@ -77,7 +78,8 @@ def test_threads_give_the_same_estimate(synthetic_training, draw):
     # maps (object_kernel) and the local refinement take the same path.
     images, az, boxes = synthetic_training
     est = PoseEstimator(search=SearchOptions(object_kernel=True, chance_correction=True),
-                        local_refinement=True).fit(images, az, boxes=boxes)
+                        refine=RefineOptions(rescale=False, local="profile")).fit(
+        images, az, boxes=boxes)
     img = draw(np.radians(143.0))
     one = est.estimate(img)
     two = est.set_params(n_jobs=2).estimate(img)
@@ -120,7 +122,7 @@ def test_appearance_refine_takes_the_nearest_training_view(synthetic_training, d
 
 def test_a_verification_that_finds_nothing_falls_back_to_the_polished_search(
         synthetic_training, draw, monkeypatch):
-    import posevote.estimator
+    import posevote.pipeline
 
     images, az, boxes = synthetic_training
     est = PoseEstimator(appearance=AppearanceOptions(candidates=5, jitter=0.0))
@@ -129,7 +131,7 @@ def test_a_verification_that_finds_nothing_falls_back_to_the_polished_search(
     unverified = est.set_params(appearance__candidates=0).estimate(img)
     # The first search is left unpolished for the verification; when that
     # finds no candidate, the estimate is the polished search's.
-    monkeypatch.setattr(posevote.estimator, "verify", lambda *args, **kwargs: None)
+    monkeypatch.setattr(posevote.pipeline, "verify", lambda *args, **kwargs: None)
     fallen_back = est.set_params(appearance__candidates=5).estimate(img)
     assert fallen_back.modes == unverified.modes and fallen_back.best is not None
 
@@ -143,7 +145,8 @@ def test_verification_with_per_scale_search_and_local_refinement(synthetic_train
     # its box, and the local refinement then reads the maps of those scales.
     search = SearchOptions(scale_range=(0.7, 1.3), scale_steps=7, object_kernel=True,
                            chance_correction=True)
-    est = PoseEstimator(search=search, local_refinement=True,
+    est = PoseEstimator(search=search, refine=RefineOptions(rescale=False, local="profile",
+                                                            outline=False),
                         appearance=AppearanceOptions(candidates=5, jitter=0.0))
     est.fit(images, az, boxes=boxes)
     img = draw(np.radians(110.0))
@@ -175,7 +178,7 @@ def test_unfitted_raises():
 
 def test_weights_and_fitting_switch_off(synthetic_training, draw):
     images, az, boxes = synthetic_training
-    est = PoseEstimator(weights=False, fitting=False, local_refinement=False)
+    est = PoseEstimator(weights=False, refine=RefineOptions(fit=False, rescale=False))
     est.fit(images, az, boxes=boxes)
     best = est.estimate(draw(np.radians(40.0))).best
     assert not best.refined
@@ -258,7 +261,7 @@ def test_local_refinement_in_object_units(synthetic_training, draw):
     est = PoseEstimator(search=SearchOptions(object_kernel=True, chance_correction=True,
                                              density_cap=0.5, inplane_range_deg=(-20, 20),
                                              scale_range=(0.7, 1.3), scale_steps=5),
-                        local_refinement=True)
+                        refine=RefineOptions(rescale=False, local="profile"))
     est.fit(images, az, boxes=boxes)
     errors, scales, inplanes, offsets = [], [], [], []
     for truth in np.radians(np.arange(10, 360, 30)):
@@ -426,7 +429,7 @@ def test_two_objects_in_one_image(fitted_estimator, draw, tmp_path):
 
 def test_a_turned_pose_keeps_the_found_pose_as_the_next_mode(synthetic_training, draw,
                                                              monkeypatch):
-    import posevote.estimator as estimator_module
+    import posevote.pipeline
 
     images, az, boxes = synthetic_training
     est = PoseEstimator.from_preset("cluttered", max_modes=2).fit(images, az, boxes=boxes)
@@ -438,20 +441,19 @@ def test_a_turned_pose_keeps_the_found_pose_as_the_next_mode(synthetic_training,
         calls.append(hypothesis)
         return replace(hypothesis, azimuth=float(np.mod(hypothesis.azimuth + np.pi, 2 * np.pi))), True
 
-    monkeypatch.setattr(estimator_module, "half_turn", turn)
+    monkeypatch.setattr(posevote.pipeline, "half_turn", turn)
     result = est.estimate(img)
     assert len(calls) == 1 and len(result.modes) == 2
     assert result.best.azimuth == pytest.approx(np.mod(found.azimuth + np.pi, 2 * np.pi))
     assert result.modes[1].azimuth == pytest.approx(found.azimuth)
-    # Only with the templates (and the local refinement) does the check run.
-    plain = PoseEstimator(local_refinement=True).fit(images, az, boxes=boxes)
-    plain.estimate(img)
+    # Only where its switch is on does the check run.
+    est.set_params(templates__half_turn=False).estimate(img)
     assert len(calls) == 1
 
 
 def test_the_best_pose_takes_its_scale_from_both_directions_with_the_templates(
         synthetic_training, draw, monkeypatch):
-    import posevote.estimator as estimator_module
+    import posevote.pipeline
 
     images, az, boxes = synthetic_training
     est = PoseEstimator.from_preset("cluttered").fit(images, az, boxes=boxes)
@@ -462,11 +464,11 @@ def test_the_best_pose_takes_its_scale_from_both_directions_with_the_templates(
         calls.append(hypothesis)
         return replace(hypothesis, scale=hypothesis.scale * 1.02)
 
-    monkeypatch.setattr(estimator_module, "share_scale", grow)
+    monkeypatch.setattr(posevote.pipeline, "share_scale", grow)
     best = est.estimate(img).best
     assert len(calls) == 1
     assert best.scale == pytest.approx(calls[0].scale * 1.02)
     assert best.score == pytest.approx(calls[0].score)
-    # Without the templates (the default and turntable presets) the scale is the refinement's.
-    PoseEstimator(local_refinement=True).fit(images, az, boxes=boxes).estimate(img)
+    # Switched off (the default and turntable presets), the scale is the refinement's.
+    est.set_params(refine__share_scale=False).estimate(img)
     assert len(calls) == 1

@@ -6,11 +6,11 @@ import math
 
 import pytest
 
+from posevote.appearance import AppearanceOptions
 from posevote.features.edges import EdgeOptions
-from posevote.inference.search import SearchOptions
-from posevote.model.appearance import AppearanceOptions
+from posevote.inference.setup import SearchOptions
 from posevote.model.kernels import KernelOptions
-from posevote.refinement.instance import RecognitionOptions
+from posevote.recognition import RecognitionOptions
 
 GROUPS = (EdgeOptions, KernelOptions, SearchOptions, RecognitionOptions, AppearanceOptions)
 

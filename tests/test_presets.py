@@ -23,7 +23,7 @@ def test_presets_differ_where_they_should():
     default, clutter = PRESETS["default"], PoseEstimator.from_preset("cluttered")
     # Only the clean-view preset rejects by score: in clutter no threshold separated
     # the object from others (benchmarks/rejection_threshold.py --clutter).
-    assert default.params == {"min_score": 0.54} and clutter.local_refinement
+    assert default.params == {"min_score": 0.54} and clutter.refine.local == "profile"
     assert clutter.min_score == 0.0
     assert clutter.search.inplane_range_deg == (-30.0, 30.0)
     turntable = PoseEstimator.from_preset("turntable")

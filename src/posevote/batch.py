@@ -70,12 +70,33 @@ def expand_images(items: Sequence[str | Path]) -> list[Path]:
     return out
 
 
-_CACHE: dict[str, Any] = {}
+_ESTIMATOR: dict[str, Any] = {}
 
 
-def estimate_record(model: str, settings: dict[str, Any], camera: dict[str, float] | None,
-                    image: str, max_objects: int = 1) -> dict[str, Any]:
-    """One image's record (runs in a worker process; the estimator is cached per process).
+def run_image(work: Callable[[Any, Any], dict[str, Any]], model: str,
+              settings: dict[str, Any], item: Any) -> dict[str, Any]:
+    """One image's record: ``work(estimator, item)`` with the estimator of a model file and
+    settings (:meth:`~posevote.PoseEstimator.set_params` changes).
+
+    The one per-image runner: a batch's images (:func:`estimate_images`), a
+    protocol's test images (:mod:`posevote.evaluation.runner`) and the rendered
+    sphere's (:mod:`posevote.evaluation.sphere`) are each ``work`` run here, in
+    a worker process (:func:`posevote._parallel.ordered_map`), where the
+    estimator is loaded once and kept for the next image of the same model and
+    settings. ``work`` must be a module-level function (it is pickled by name).
+    """
+    from posevote.estimator import PoseEstimator
+
+    key = json.dumps([model, settings], sort_keys=True, default=str)
+    est = _ESTIMATOR.get(key)
+    if est is None:
+        _ESTIMATOR.clear()
+        est = _ESTIMATOR[key] = PoseEstimator.load(model).set_params(**settings)
+    return work(est, item)
+
+
+def estimate_record(est: Any, item: tuple[dict[str, float] | None, str, int]) -> dict[str, Any]:
+    """One image's record in a batch: ``item`` is (camera, image, max_objects).
 
     With ``max_objects`` over 1 the record holds ``objects``, one
     :meth:`~posevote.PoseEstimate.to_dict` per object found
@@ -83,13 +104,8 @@ def estimate_record(model: str, settings: dict[str, Any], camera: dict[str, floa
     record with ``error`` instead of stopping the batch.
     """
     from posevote.camera import Camera
-    from posevote.estimator import PoseEstimator
 
-    key = json.dumps([model, settings], sort_keys=True, default=str)
-    est = _CACHE.get(key)
-    if est is None:
-        _CACHE.clear()
-        est = _CACHE[key] = PoseEstimator.load(model).set_params(**settings)
+    camera, image, max_objects = item
     cam = None if camera is None else Camera(**camera)
     try:
         if max_objects > 1:
@@ -210,8 +226,8 @@ def _run(model: str, settings: dict[str, Any], camera: dict[str, float] | None,
     count = len(names) - len(todo)
     if progress is not None:
         progress(count, len(names))
-    new = ordered_map(estimate_record, [(model, settings, camera, n, max_objects) for n in todo],
-                      jobs=jobs, scheduler=scheduler)
+    new = ordered_map(run_image, [(estimate_record, model, settings, (camera, n, max_objects))
+                                  for n in todo], jobs=jobs, scheduler=scheduler)
     for name in names:
         if name in done:
             yield done[name]

@@ -13,6 +13,7 @@ Exit codes
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import sys
@@ -119,10 +120,13 @@ def _parse_params(items: tuple[str, ...]) -> dict[str, Any]:
                              for f in dataclasses.fields(c))]
             raise click.BadParameter(f"unknown estimator parameter {name!r}; valid: "
                                      f"{', '.join(valid)}", param_hint="--param")
+        if not dot and group in OPTION_GROUPS and value.strip() == "on":
+            params[group] = OPTION_GROUPS[group]()
+            continue
         if not dot and group in OPTION_GROUPS and value.strip() != "None":
             raise click.BadParameter(f"{item!r}: set the fields of {group} one by one "
-                                     f"({group}.FIELD=VALUE), or {group}=None to switch it off",
-                                     param_hint="--param")
+                                     f"({group}.FIELD=VALUE), {group}=on for its defaults, or "
+                                     f"{group}=None to switch it off", param_hint="--param")
         try:
             params[f"{group}__{field}" if dot else group] = parse_setting(value)
         except ValueError as err:
@@ -286,7 +290,9 @@ def train(source: Path, output: Path, layout: str, objects: str | None, cars: st
               help="Scales searched relative to training, e.g. 0.7 1.3.")
 @click.option("--depth-range", nargs=2, type=float, default=None, metavar="NEAR FAR",
               help="Depths of the object searched, metres (with --camera; sets the scales).")
-@click.option("--no-fitting", is_flag=True, help="Skip the continuous refinement.")
+@click.option("--no-fitting", is_flag=True,
+              help="Skip the continuous refinement: the modes are the best probes (polished "
+                   "where the preset refines locally).")
 @click.option("--min-score", type=float, default=None, help="Report 'not found' below this.")
 @click.option("--threads", type=click.IntRange(1, 64), default=1, show_default=True,
               help="Threads probing viewpoints at once (faster on several cores; same result).")
@@ -307,7 +313,7 @@ def estimate(model: Path, images: tuple[Path, ...], as_json: bool, as_csv: bool,
     from posevote.batch import expand_images
     from posevote.camera import read_camera, scale_range_for_depths
     from posevote.estimator import PoseEstimator
-    from posevote.inference.search import SCALE_LIMITS
+    from posevote.inference.setup import SCALE_LIMITS
 
     if as_json and as_csv:
         raise click.BadParameter("give --json or --csv, not both", param_hint="--csv")
@@ -344,7 +350,9 @@ def estimate(model: Path, images: tuple[Path, ...], as_json: bool, as_csv: bool,
             changes["search__scale_range"] = tuple(scale_range)
             changes["search__scale_steps"] = max(est.search.scale_steps, 5)
         if no_fitting:
-            changes["fitting"] = False
+            changes["refine"] = dataclasses.replace(
+                est.refine, fit=False, rescale=False,
+                local=None if est.refine.local is None else "polish")
         if min_score is not None:
             changes["min_score"] = min_score
         est.set_params(**changes)
@@ -488,17 +496,22 @@ def bop(model: Path, scenes: tuple[Path, ...], obj_id: int, output: Path,
 
 
 @cli.command()
-@click.option("-v", "--verbose", is_flag=True, help="Also print each preset's parameters.")
+@click.option("-v", "--verbose", is_flag=True,
+              help="Also print each preset's steps, in the order they run, and its parameters.")
 def presets(verbose: bool) -> None:
     """List the named presets, what each is for and where it was chosen."""
     from posevote.estimator import PoseEstimator
+    from posevote.pipeline import Settings, describe
     from posevote.presets import PRESETS
 
     for p in PRESETS.values():
         click.echo(f"{p.name:10s} {p.description}")
         click.echo(f"{'':10s} chosen on: {p.chosen_on} ({p.script})")
         if verbose:
-            click.echo(f"{'':10s} {PoseEstimator.from_preset(p.name)!r}")
+            est = PoseEstimator.from_preset(p.name)
+            steps = describe(Settings.of(est.get_params(deep=False)))
+            click.echo(f"{'':10s} steps: {' -> '.join(steps)}")
+            click.echo(f"{'':10s} {est!r}")
 
 
 @cli.command()

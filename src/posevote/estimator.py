@@ -1,84 +1,65 @@
 """The estimator: training (Sec. II-A, II-C) and estimation (Sec. II-B) in one object.
 
-:class:`PoseEstimator` only orchestrates: every stage is a plain function of
-its subpackage (``features`` -> ``model`` -> ``inference`` -> ``refinement``),
-and every stage's settings are one frozen option group that validates itself.
-Named, tuned configurations are :mod:`posevote.presets`.
+:class:`PoseEstimator` holds the parameters, fits the model (asking the
+estimate's steps what they need learnt), hands each estimate to
+:mod:`posevote.pipeline` and reads and writes model files. Every stage is a
+plain function of its subpackage and every stage's settings one frozen option
+group that validates itself; named, tuned configurations are
+:mod:`posevote.presets`.
 """
 
 from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import replace
-from functools import partial
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from posevote import pipeline
 from posevote._errors import not_fitted_error
 from posevote._options import GroupedParams, Options, params_from_json, params_to_json
-from posevote.camera import Camera, place_all
+from posevote.appearance import AppearanceOptions
+from posevote.camera import Camera
 from posevote.data.images import load_image
-from posevote.features.edges import EdgeFeatures, EdgeOptions, extract_edges, without_box
-from posevote.geometry import box_iou, rotate_points
-from posevote.inference.coverage import rerank_by_coverage
-from posevote.inference.maps import TestMaps
-from posevote.inference.search import (
-    OBJECT_MARGIN,
-    OBJECT_OVERLAP,
-    ProbeSet,
-    SearchOptions,
-    SearchSetup,
-    image_maps,
-    probe,
-    search_maps,
-)
-from posevote.inference.templates import gradient_similarity, pose_correlations, rerank_by_template
-from posevote.inference.verification import verify
-from posevote.model.appearance import AppearanceModel, AppearanceOptions
-from posevote.model.density import PoseModel, origin_offset
-from posevote.model.kernels import K1_CUTOFF, KernelOptions
-from posevote.model.outline import outline_at, outline_box
+from posevote.features.edges import EdgeFeatures, EdgeOptions, extract_edges
+from posevote.inference.probes import ProbeSet
+from posevote.inference.setup import SearchOptions, SearchSetup
+from posevote.model.density import PoseModel
+from posevote.model.kernels import KernelOptions
 from posevote.model.pruning import PruningPreset, resolve_preset
 from posevote.model.training import TrainedModel, extend_model, train_model
+from posevote.pipeline import Settings, search_setup
 from posevote.presets import get_preset, nearest_preset
-from posevote.refinement.appearance import appearance_refine
-from posevote.refinement.fitting import FIT_RADIUS_STEPS, find_modes, refine_mode
-from posevote.refinement.halfturn import half_turn
-from posevote.refinement.instance import RecognitionOptions, recognize
-from posevote.refinement.local import local_refine, rescale_mode
-from posevote.refinement.probability import scored_viewpoints, with_probabilities
-from posevote.refinement.share import share_scale
-from posevote.results import Hypothesis, PoseEstimate
+from posevote.recognition import RecognitionOptions
+from posevote.refinement import RefineOptions
+from posevote.results import PoseEstimate
+from posevote.templates import TemplateOptions
 
 ImageLike = str | Path | NDArray
 
-#: The option group of each grouped parameter (None switches a stage off).
+#: The option group of each grouped parameter.
 OPTION_GROUPS: dict[str, type[Options]] = {
     "edges": EdgeOptions, "kernel": KernelOptions, "search": SearchOptions,
-    "recognition": RecognitionOptions, "appearance": AppearanceOptions}
+    "refine": RefineOptions, "templates": TemplateOptions, "recognition": RecognitionOptions,
+    "appearance": AppearanceOptions}
+#: The groups that None switches off (an idea beyond the paper, or recognition).
+OPTIONAL_GROUPS = ("templates", "recognition", "appearance")
 
 
 class PoseEstimator(GroupedParams):
     """Continuous 3D pose of an object in a single image (Teney & Piater 2013).
 
     Build one from a named preset (:meth:`from_preset`, :mod:`posevote.presets`)
-    rather than by hand; every parameter can be overridden there.
+    rather than by hand; every parameter can be overridden there. The estimate
+    runs the steps these parameters switch on (:mod:`posevote.pipeline`).
 
     Parameters
     ----------
     weights : bool, default True
         Weight training features by pose specificity (Eq. 4).
-    fitting : bool, default True
-        Refine each mode by local distribution fitting (Sec. II-B).
-    local_refinement : bool, default False
-        Maximise the exact p(w) of the best mode with the narrow kernel over
-        in-plane angle, scale and translation at the viewpoints near it, and
-        fit the viewpoint to those maxima (beyond the paper;
-        :func:`posevote.refinement.local.local_refine`).
     morph_views : bool, default False
         Training: measure by optical flow where each feature moves to in the
         neighbouring views (in azimuth; over a sphere of views also in
@@ -90,16 +71,24 @@ class PoseEstimator(GroupedParams):
     kernel : KernelOptions
         Kernel widths (:class:`posevote.model.kernels.KernelOptions`).
     search : SearchOptions
-        The search grid and scoring (:class:`posevote.inference.search.SearchOptions`).
+        The search grid, its scoring and the coverage re-ranking
+        (:class:`posevote.inference.setup.SearchOptions`).
+    refine : RefineOptions
+        The refinement steps' switches: fit, rescale, local refinement, share
+        scale, outline (:class:`posevote.refinement.RefineOptions`).
     prune : {None, "moderate", "aggressive"} or PruningPreset, default None
         Prune a pooled model by clustering (Sec. III-A); the search then runs
         on the cluster centres, recognition and refinement on the full model.
+    templates : TemplateOptions or None, default None
+        Grey-level templates learnt with the model: the template re-ranking,
+        weighing and half-turn check (beyond the paper;
+        :class:`posevote.templates.TemplateOptions`). None: off.
     recognition : RecognitionOptions or None
         Instance recognition for models of several instances (Sec. III-B;
-        :class:`posevote.refinement.instance.RecognitionOptions`); None: off.
+        :class:`posevote.recognition.RecognitionOptions`); None: off.
     appearance : AppearanceOptions or None, default None
         HOG verification, box regression and nearest-view viewpoint (beyond
-        the paper; :class:`posevote.model.appearance.AppearanceOptions`);
+        the paper; :class:`posevote.appearance.AppearanceOptions`);
         learnt when the model is fitted. None: off.
     max_modes : int, default 3
         Modes reported per image.
@@ -108,25 +97,32 @@ class PoseEstimator(GroupedParams):
     n_jobs : int, default 1
         Threads probing viewpoints (and reading training images) at once:
         the time of an estimate or of training, not its result.
+
+    Examples
+    --------
+    >>> from posevote import PoseEstimator
+    >>> from posevote.data import toy_views
+    >>> images, poses, boxes = toy_views(range(0, 360, 20))
+    >>> estimator = PoseEstimator.from_preset("default").fit(images, poses, boxes=boxes)
+    >>> test_image = toy_views([40])[0][0]
+    >>> round(estimator.estimate(test_image).best.azimuth_deg)
+    40
     """
 
     _groups = OPTION_GROUPS
 
-    def __init__(self, *, weights: bool = True, fitting: bool = True,
-                 local_refinement: bool = False, morph_views: bool = False,
+    def __init__(self, *, weights: bool = True, morph_views: bool = False,
                  edges: EdgeOptions = EdgeOptions(), kernel: KernelOptions = KernelOptions(),
-                 search: SearchOptions = SearchOptions(),
-                 prune: str | PruningPreset | None = None,
+                 search: SearchOptions = SearchOptions(), refine: RefineOptions = RefineOptions(),
+                 prune: str | PruningPreset | None = None, templates: TemplateOptions | None = None,
                  recognition: RecognitionOptions | None = RecognitionOptions(),
                  appearance: AppearanceOptions | None = None, max_modes: int = 3,
                  min_score: float = 0.0, n_jobs: int = 1) -> None:
-        self.weights, self.fitting = weights, fitting
-        self.local_refinement, self.morph_views = local_refinement, morph_views
-        self.edges, self.kernel, self.search = edges, kernel, search
-        self.prune, self.recognition, self.appearance = prune, recognition, appearance
-        self.max_modes = max_modes
-        self.min_score = min_score
-        self.n_jobs = n_jobs
+        self.weights, self.morph_views = weights, morph_views
+        self.edges, self.kernel, self.search, self.refine = edges, kernel, search, refine
+        self.prune, self.templates = prune, templates
+        self.recognition, self.appearance = recognition, appearance
+        self.max_modes, self.min_score, self.n_jobs = max_modes, min_score, n_jobs
 
     @classmethod
     def from_preset(cls, name: str, **overrides: Any) -> PoseEstimator:
@@ -134,16 +130,21 @@ class PoseEstimator(GroupedParams):
 
         ``overrides`` are :meth:`set_params` keys: ``search=SearchOptions(...)``
         replaces a group, ``search__scale_steps=5`` one of its fields.
+
+        Examples
+        --------
+        >>> PoseEstimator.from_preset("turntable", search__scale_steps=3).search.scale_steps
+        3
         """
         return cls(**get_preset(name).params).set_params(**overrides)
 
     def _validate_params(self) -> None:
-        for name in ("weights", "fitting", "local_refinement", "morph_views"):
+        for name in ("weights", "morph_views"):
             if not isinstance(getattr(self, name), (bool, np.bool_)):
                 raise ValueError(f"{name} must be True or False, got {getattr(self, name)!r}")
         for name, cls in OPTION_GROUPS.items():
             value = getattr(self, name)
-            optional = name in ("recognition", "appearance")
+            optional = name in OPTIONAL_GROUPS
             if not (isinstance(value, cls) or (optional and value is None)):
                 raise TypeError(f"{name} must be a {cls.__name__}"
                                 f"{' or None' if optional else ''}, got {value!r}")
@@ -208,13 +209,15 @@ class PoseEstimator(GroupedParams):
             training image without edges.
         """
         self._validate_params()
+        # What the estimate's steps read besides the edges is learnt with them.
+        needs = pipeline.artefacts(self._settings())
         trained = train_model(images, poses, boxes=boxes, masks=masks, instances=instances,
                               category=category, edges=self.edges, kernel=self.kernel,
                               morph=self.morph_views, prune=resolve_preset(self.prune),
-                              appearance=self.appearance is not None,
-                              templates=self.search.rerank == "template", progress=progress,
-                              channels=channels, object_height_m=object_height_m,
-                              origins=origins, n_threads=self.n_jobs)
+                              appearance="appearance" in needs, templates="templates" in needs,
+                              progress=progress, channels=channels,
+                              object_height_m=object_height_m, origins=origins,
+                              n_threads=self.n_jobs)
         self._set_trained(trained)
         return self
 
@@ -259,41 +262,44 @@ class PoseEstimator(GroupedParams):
                                       "load() first")
         return model
 
-    def _appearance_model(self) -> AppearanceModel:
-        found = getattr(self, "appearance_model_", None)
-        if found is None:
-            raise ValueError("the appearance stages need the appearance model learnt when the "
-                             "model is fitted; fit (or retrain) with appearance set")
-        return found
-
     # -- estimation --------------------------------------------------------------------
+    def _settings(self) -> Settings:
+        return Settings.of(self.get_params(deep=False))
+
     def setup(self) -> SearchSetup:
         """The search setup of the fitted model with the current parameters."""
         self._check_fitted()
-        return SearchSetup(options=self.search, position_sigma=self.kernel.position_sigma,
-                           edge_spacing=self.edges.spacing, viewpoint_kappa=self.viewpoint_kappa_,
-                           use_weights=self.weights, n_threads=self.n_jobs)
+        return search_setup(self._settings(), self._trained())
 
-    def _read(self, image: ImageLike, channels: str) -> tuple[EdgeFeatures, NDArray[np.float64]]:
+    def _read(self, image: ImageLike, channels: str) -> tuple[NDArray[np.float64], EdgeFeatures]:
         img = load_image(image, channels=channels)
-        return extract_edges(img, self.edges, training=False), img
+        return img, extract_edges(img, self.edges, training=False)
 
     def probe(self, image: ImageLike, *, progress: Callable[[int], None] | None = None,
               channels: str = "rgb") -> tuple[ProbeSet, EdgeFeatures]:
         """The probes of p(w) for an image (Fig. 2), before refinement, and its edge features.
 
-        ``progress`` is called with 1 after each probed viewpoint; ``channels`` as in estimate().
+        The search and the re-rankings the settings switch on
+        (:data:`posevote.pipeline.SEARCH_STEPS`); ``progress`` is called with 1
+        after each probed viewpoint; ``channels`` as in :meth:`estimate`.
         """
-        model = self._check_fitted()
+        self._check_fitted()
         self._validate_params()
-        feats, img = self._read(image, channels)
-        setup = self.setup()
-        maps = search_maps(feats, img.shape, model, setup)
-        return self._rerank(probe(model, maps, setup, progress=progress), maps, img), feats
+        settings = self._settings()
+        steps = pipeline.active_steps(settings, pipeline.SEARCH_STEPS)
+        img, feats = self._read(image, channels)
+        state = pipeline.begin(settings, self._trained(), img, feats, steps=steps,
+                               progress=progress)
+        probes = pipeline.run(state, steps).probes
+        assert probes is not None
+        return probes, feats
 
     def estimate(self, image: ImageLike, *, channels: str = "rgb",
                  camera: Camera | None = None) -> PoseEstimate:
         """Find the object and estimate its continuous pose (Sec. II-B).
+
+        The steps the parameters switch on run in order
+        (:mod:`posevote.pipeline`; ``posevote presets -v`` lists a preset's).
 
         Parameters
         ----------
@@ -310,156 +316,43 @@ class PoseEstimator(GroupedParams):
         PoseEstimate
             ``found`` is False when the image has no edges or no mode scores
             above ``min_score``.
+
+        Examples
+        --------
+        >>> result = estimator.estimate(test_image)
+        >>> result.found, round(result.best.azimuth_deg)
+        (True, 40)
         """
         start = time.perf_counter()
         self._check_fitted()
         self._validate_params()
-        feats, img = self._read(image, channels)
-        return self._estimate(feats, img, camera, start)
+        img, feats = self._read(image, channels)
+        return pipeline.estimate(self._settings(), self._trained(), img, feats, camera=camera,
+                                 start=start)
 
     def estimate_objects(self, image: ImageLike, max_objects: int, *, channels: str = "rgb",
                          camera: Camera | None = None) -> list[PoseEstimate]:
         """Up to ``max_objects`` objects, best first (each as :meth:`estimate` finds one).
 
         After each object is found, the edges in its box (grown by
-        ``OBJECT_MARGIN``) are taken away and the search runs again on the rest;
-        a box overlapping one already found (IoU over ``OBJECT_OVERLAP``) is
-        not kept. The list is empty when no object is found.
+        ``pipeline.OBJECT_MARGIN``) are taken away and the search runs again on
+        the rest; a box overlapping one already found (IoU over
+        ``pipeline.OBJECT_OVERLAP``) is not kept. The list is empty when no
+        object is found.
+
+        Examples
+        --------
+        >>> [round(r.best.azimuth_deg) for r in estimator.estimate_objects(test_image, 2)]
+        [40]
         """
         start = time.perf_counter()
         self._check_fitted()
         self._validate_params()
         if not (isinstance(max_objects, int) and 1 <= max_objects <= 100):
             raise ValueError(f"max_objects must be an integer in [1, 100], got {max_objects!r}")
-        feats, img = self._read(image, channels)
-        found: list[PoseEstimate] = []
-        while len(found) < max_objects and len(feats):
-            result = self._estimate(feats, img, camera, start)
-            if result.best is None:
-                break
-            if all(box_iou(result.best.box, f.best.box) <= OBJECT_OVERLAP for f in found if f.best):
-                found.append(result)
-            feats = without_box(feats, result.best.box, grow=OBJECT_MARGIN)
-            start = time.perf_counter()
-        return found
-
-    def _estimate(self, feats: EdgeFeatures, img: NDArray[np.float64], camera: Camera | None,
-                  start: float) -> PoseEstimate:
-        model = self._check_fitted()
-        shape = (int(img.shape[0]), int(img.shape[1]))
-        setup = self.setup()
-        full = search_maps(feats, shape, model, setup)
-        maps: TestMaps | Sequence[TestMaps | None] = full
-        # The verification only ranks the first search's probes and moves their
-        # boxes itself: they need no polish unless it finds nothing.
-        verifying = self.appearance is not None and bool(self.appearance.candidates)
-        probes = self._rerank(probe(model, full, setup, polish=not verifying), full, img)
-        verified_box = None
-        located = None
-        # The descriptors read single precision: the image converted once, not per box.
-        grey = img.astype(np.float32) if self.appearance is not None else img
-        if verifying and self.appearance is not None and probes.score.any():
-            located = verify(probes, grey, feats, full, model, self._appearance_model(),
-                             self.appearance, setup)
-            if located is not None:
-                feats, maps, probes, verified_box = located
-        if verifying and located is None:
-            probes = self._rerank(probe(model, full, setup), full, img)
-        modes = find_modes(probes, max_modes=self.max_modes)
-        hyps = [refine_mode(probes, v, fit=self.fitting, radius_steps=FIT_RADIUS_STEPS)
-                for v in modes]
-        recognizing = self.recognition is not None and len(model.instance_names) > 1
-        fine = image_maps(feats, shape, setup) if hyps and recognizing else None
-        if self.fitting and not self.local_refinement and self.appearance is None and hyps \
-                and len(model.instance_names) <= 1:
-            # The fit reads the scale a few percent short; the narrow kernel does not
-            # (one instance: a category's pooled views pull it onto inner edges).
-            hyps[0] = rescale_mode(hyps[0], model, image_maps(feats, shape, setup), setup)
-        if self.local_refinement and hyps:
-            correlate = self._correlate(img)
-            # In object units, at the probes' own scales (after the verification,
-            # only those near its box).
-            hyps[0] = local_refine(probes, modes[0], hyps[0], model, setup, fitting=self.fitting,
-                                   features=feats, shape=shape, maps=fine,
-                                   object_units=self.search.object_kernel, correlate=correlate)
-            if correlate is not None and not recognizing:
-                pixel_maps = image_maps(feats, shape, setup)
-                # A plainer side over the other explains itself as fully: the
-                # image's own edges decide (measured with the templates).
-                pose, turned = half_turn(hyps[0], model, pixel_maps, setup, correlate,
-                                         resemble=partial(gradient_similarity, model, img),
-                                         features=feats, shape=shape)
-                # The search's profile still favours the found pose's side: a turned
-                # pose keeps it, as the next mode, with the probability of its side.
-                hyps = [pose, *hyps][:self.max_modes] if turned else [pose, *hyps[1:]]
-                # The narrow score draws the outline in onto the object's inner
-                # edges; the image's edges explained too set the scale.
-                hyps[0] = share_scale(hyps[0], model, pixel_maps, setup)
-        instance, margin = "", float("nan")
-        if recognizing and hyps and fine is not None and self.recognition is not None:
-            hyps, instance, margin = recognize(hyps, feats, self.full_model_, maps, fine, setup,
-                                               self.recognition, fitting=self.fitting,
-                                               local=self.local_refinement)
-        if self.appearance is not None and hyps:
-            hyps[0] = appearance_refine(hyps[0], grey, model, self._appearance_model(),
-                                        self.appearance, verified_box=verified_box)
-        if self.appearance is None:
-            hyps = [self._outlined(h) for h in hyps]
-        kept_hyps = with_probabilities([h for h in hyps if h.score > self.min_score], probes)
-        kept = tuple(place_all(kept_hyps, camera, reference_size_px=model.reference_size,
-                               object_height_m=self.object_height_m_,
-                               anchors=None if camera is None
-                               else [self._origin(h) for h in kept_hyps]))
-        return PoseEstimate(found=bool(kept), best=kept[0] if kept else None, modes=kept,
-                            n_test_features=len(feats), seconds=time.perf_counter() - start,
-                            instance=instance if kept else "", instance_margin=margin,
-                            top_score=max((h.score for h in hyps), default=0.0),
-                            viewpoint_scores=scored_viewpoints(probes))
-
-    def _rerank(self, probes: ProbeSet, maps: TestMaps | Sequence[TestMaps],
-                image: NDArray[np.float64]) -> ProbeSet:
-        """The best probes re-ranked as ``search.rerank`` says."""
-        model = self._check_fitted()
-        if self.search.rerank == "coverage":
-            return rerank_by_coverage(probes, model, maps, self.setup())
-        if self.search.rerank == "template":
-            return rerank_by_template(probes, model, image)
-        return probes
-
-    def _correlate(self, image: NDArray[np.float64]
-                   ) -> Callable[[list[Hypothesis]], NDArray[np.float64]] | None:
-        """What weighs poses by the object's grey levels, with the template re-ranking."""
-        if self.search.rerank != "template":
-            return None
-        model = self._check_fitted()
-
-        def correlate(hyps: list[Hypothesis]) -> NDArray[np.float64]:
-            return pose_correlations(model, image, *(np.array([getattr(h, name) for h in hyps])
-                                                     for name in ("azimuth", "elevation",
-                                                                  "inplane", "scale",
-                                                                  "position")))
-        return correlate
-
-    def _outlined(self, hypothesis: Hypothesis) -> Hypothesis:
-        """The hypothesis with the box of its view's outline, where the model has outlines
-        (they bound the object tighter than the view's box turned)."""
-        outline = outline_at(self._check_fitted(), hypothesis.azimuth, hypothesis.elevation,
-                             kappa=self.viewpoint_kappa_, k1_cutoff=K1_CUTOFF)
-        if outline is None:
-            return hypothesis
-        return replace(hypothesis, box=outline_box(outline, hypothesis.position, hypothesis.scale,
-                                                   hypothesis.inplane))
-
-    def _origin(self, hypothesis: Hypothesis) -> tuple[float, float, float] | None:
-        """The image of the object's origin under a hypothesis and its depth factor (None:
-        the box centre at the object's depth)."""
-        offset = origin_offset(self._check_fitted(), hypothesis.azimuth, hypothesis.elevation,
-                               kappa=self.viewpoint_kappa_, k1_cutoff=K1_CUTOFF)
-        if offset is None:
-            return None
-        u, v = hypothesis.position + hypothesis.scale * rotate_points(offset[:2],
-                                                                       hypothesis.inplane)
-        return float(u), float(v), float(offset[2])
+        img, feats = self._read(image, channels)
+        return pipeline.estimate_objects(self._settings(), self._trained(), img, feats,
+                                         max_objects, camera=camera, start=start)
 
     # -- persistence -------------------------------------------------------------------
     def save(self, path: str | Path) -> None:

@@ -13,11 +13,13 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from posevote._options import params_to_json
+from posevote.appearance import AppearanceOptions
 from posevote.features.edges import EdgeOptions
-from posevote.inference.search import SearchOptions
-from posevote.model.appearance import AppearanceOptions
+from posevote.inference.setup import SearchOptions
 from posevote.model.kernels import KernelOptions
-from posevote.refinement.instance import RecognitionOptions
+from posevote.recognition import RecognitionOptions
+from posevote.refinement import RefineOptions
+from posevote.templates import TemplateOptions
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -85,8 +87,9 @@ PRESETS: dict[str, Preset] = {p.name: p for p in (
         params={"search": SearchOptions(inplane_range_deg=(-30.0, 30.0), inplane_step_deg=5.0,
                                         scale_range=(0.7, 1.3), scale_steps=7,
                                         object_kernel=True, chance_correction=True,
-                                        density_cap=0.5, rerank="template"),
-                "local_refinement": True}),
+                                        density_cap=0.5),
+                "refine": RefineOptions(rescale=False, local="profile", share_scale=True),
+                "templates": TemplateOptions()}),
     Preset(
         name="turntable",
         description="dense turntable views of one object, full frames at a fixed distance, "
@@ -98,7 +101,7 @@ PRESETS: dict[str, Preset] = {p.name: p for p in (
         params={"edges": EdgeOptions(max_train_features=150),
                 "search": SearchOptions(viewpoint_subdivisions=2, scale_steps=5,
                                         object_kernel=True, chance_correction=True),
-                "local_refinement": True, "morph_views": True}),
+                "refine": RefineOptions(rescale=False, local="profile"), "morph_views": True}),
     Preset(
         name="category",
         description="a category learnt from several instances, found in full cluttered "
@@ -111,6 +114,8 @@ PRESETS: dict[str, Preset] = {p.name: p for p in (
         params={"edges": EdgeOptions(max_train_features=150),
                 "kernel": KernelOptions(position_sigma=6.0, viewpoint_bandwidth_deg=5.0),
                 "search": _EPFL_SEARCH,
+                # The appearance step regresses the box and reads the viewpoint itself.
+                "refine": RefineOptions(rescale=False, outline=False),
                 "recognition": RecognitionOptions(margin=1.0, search=False),
                 "appearance": AppearanceOptions()}),
 )}

@@ -62,7 +62,7 @@ def test_changed_settings_redo_records(tiny_protocol, tmp_path):
     out = tmp_path / "res"
     run_protocol(tiny_protocol, out, log=lambda m: None)
     changed = replace(tiny_protocol, rows=(replace(tiny_protocol.rows[0],
-                                                   params={"fitting": False}),))
+                                                   params={"refine__fit": False}),))
     messages, done = [], []
     run_protocol(changed, out, log=messages.append, progress=lambda d, t: done.append(d))
     assert done[0] == 0 and any("changed" in m for m in messages)
@@ -94,7 +94,7 @@ def test_default_rows_and_all(tiny_protocol, tmp_path):
     from dataclasses import replace
 
     two = replace(tiny_protocol, rows=(tiny_protocol.rows[0],
-                                       Row(name="no fitting", params={"fitting": False})),
+                                       Row(name="no fitting", params={"refine__fit": False})),
                   default_rows=("no fitting",))
     summary = run_protocol(two, tmp_path / "default", log=lambda m: None)
     assert [r["name"] for r in summary["rows"]] == ["no fitting"]

@@ -5,8 +5,9 @@ import pytest
 
 from posevote.features.edges import EdgeFeatures, extract_edges
 from posevote.inference.coverage import COVERAGE_CANDIDATES, coverage, rerank_by_coverage
-from posevote.inference.maps import prepare_test
-from posevote.inference.search import SearchOptions, probe, search_maps
+from posevote.inference.search import probe
+from posevote.inference.setup import SearchOptions, search_maps
+from posevote.scoring.maps import prepare_test
 
 
 def _outline(points, step=2.0):

@@ -3,8 +3,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from posevote.inference import ProbeSet, viewpoint_grid
-from posevote.inference.search import SearchOptions
+from posevote.inference.probes import ProbeSet
+from posevote.inference.search import viewpoint_grid
+from posevote.inference.setup import SearchOptions
 
 
 def test_viewpoint_grid_subdivides_turntable(fitted_estimator):
@@ -30,9 +31,9 @@ def test_viewpoint_grid_regular_step(fitted_estimator):
 
 def test_per_scale_maps_and_chance_correction(fitted_estimator, draw):
     from posevote.features.edges import extract_edges
-    from posevote.inference import probe_poses
-    from posevote.inference.maps import scaled_features
-    from posevote.inference.search import image_maps
+    from posevote.inference.search import probe_poses
+    from posevote.inference.setup import _search_image_maps
+    from posevote.scoring.maps import scaled_features
 
     est = fitted_estimator
     image = draw(np.radians(60))
@@ -41,8 +42,8 @@ def test_per_scale_maps_and_chance_correction(fitted_estimator, draw):
 
     def maps_for(options):
         setup = replace(est.setup(), options=options)
-        return [image_maps(*scaled_features(feats, shape, s), setup, sigma=3.0, scale=s,
-                           search=True) for s in scales]
+        return [_search_image_maps(*scaled_features(feats, shape, s), setup, sigma=3.0, scale=s)
+                for s in scales]
 
     kw = dict(azimuths=np.radians([40.0, 60.0]), elevations=np.zeros(2), inplanes=np.zeros(1),
               scales=scales, viewpoint_kappa=est.viewpoint_kappa_)
@@ -70,13 +71,15 @@ def test_probe_boxes_are_the_viewpoint_box_at_each_scale_around_each_translation
 
 def test_threads_give_the_same_probes(fitted_estimator, draw):
     from posevote.features.edges import extract_edges
-    from posevote.inference import probe_poses
-    from posevote.inference.search import image_maps
+    from posevote.inference.search import probe_poses
+    from posevote.model.kernels import ORIENTATION_KAPPA
+    from posevote.scoring.maps import prepare_test
 
     est = fitted_estimator
     image = draw(np.radians(130))
     feats = extract_edges(image, est.edges, training=False)
-    maps = image_maps(feats, image.shape, est.setup(), sigma=3.0)
+    maps = prepare_test(feats, image.shape, position_sigma=3.0, orientation_kappa=ORIENTATION_KAPPA,
+                        edge_spacing=est.edges.spacing)
     az, el = viewpoint_grid(est.model_)
     kw = dict(azimuths=az, elevations=el, inplanes=np.radians([-10.0, 0.0, 10.0]),
               scales=np.array([0.9, 1.0, 1.1]), viewpoint_kappa=est.viewpoint_kappa_)
@@ -92,8 +95,9 @@ def test_threads_give_the_same_probes(fitted_estimator, draw):
 
 
 def test_the_search_features_of_a_viewpoint_are_kept_per_model(fitted_estimator):
-    from posevote.inference.search import _PROBE_CACHE, _probe_features, viewpoint_features
-    from posevote.inference.voting import strongest_voters, subsample_features
+    from posevote.inference.search import _PROBE_CACHE, _probe_features
+    from posevote.inference.voting import strongest_voters
+    from posevote.scoring.score import subsample_features, viewpoint_features
 
     est = fitted_estimator
     model, kappa = est.model_, est.viewpoint_kappa_
@@ -113,7 +117,8 @@ def test_the_search_features_of_a_viewpoint_are_kept_per_model(fitted_estimator)
 
 def test_a_search_near_a_pose_probes_the_scales_near_its_own(fitted_estimator, draw):
     from posevote.features.edges import extract_edges
-    from posevote.inference.search import near_scales, probe, search_maps
+    from posevote.inference.search import near_scales, probe
+    from posevote.inference.setup import search_maps
     from posevote.results import Hypothesis
 
     est = fitted_estimator
@@ -151,8 +156,8 @@ def _ranking_search(est, draw, polish):
     """A ranking search (per-scale maps, six scales) of a view drawn at 60 degrees, its
     scales, and what probes every ``step``-th scale at every viewpoint."""
     from posevote.features.edges import extract_edges
-    from posevote.inference import probe_poses
-    from posevote.inference.search import MAX_VOTERS, VOTE_CANDIDATES, probe, search_maps
+    from posevote.inference.search import MAX_VOTERS, VOTE_CANDIDATES, probe, probe_poses
+    from posevote.inference.setup import search_maps
     from posevote.model.kernels import K1_CUTOFF
 
     options = SearchOptions(scale_range=(0.7, 1.45), scale_steps=6, object_kernel=True)
@@ -195,16 +200,16 @@ def test_a_polished_search_on_one_set_of_maps_polishes_near_its_best_viewpoints(
     # viewpoints within the fit's reach of the POLISHED_MODES best polished
     # as a polished search of every viewpoint polishes them.
     from posevote.features.edges import extract_edges
-    from posevote.inference import probe_poses
+    from posevote.inference.probes import probe_spacing
     from posevote.inference.search import (
         MAX_VOTERS,
         POLISH_REACH_STEPS,
         POLISHED_MODES,
         VOTE_CANDIDATES,
         probe,
-        probe_spacing,
-        search_maps,
+        probe_poses,
     )
+    from posevote.inference.setup import search_maps
     from posevote.model.kernels import K1_CUTOFF
     from posevote.refinement.fitting import FIT_RADIUS_STEPS
 

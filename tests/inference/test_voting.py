@@ -4,7 +4,6 @@ import numpy as np
 import pytest
 
 from posevote.features import EdgeFeatures
-from posevote.inference.maps import prepare_test
 from posevote.inference.voting import (
     POLISHED_STEPS,
     _argmax_nonnegative,
@@ -13,14 +12,17 @@ from posevote.inference.voting import (
     accumulate_votes_reference,
     blur_reference,
     blur_taps,
+    polish_translations,
+    search_translations,
+    strongest_voters,
+)
+from posevote.scoring.maps import prepare_test
+from posevote.scoring.score import (
     density_at,
     gather_score,
     gather_score_reference,
     place_features,
-    polish_translations,
-    search_translations,
     shifted_score,
-    strongest_voters,
 )
 
 
@@ -196,7 +198,7 @@ def test_the_voters_are_the_heaviest_features_in_their_order():
 
 
 def test_density_options_and_chance(scene):
-    from posevote.inference.maps import scaled_features
+    from posevote.scoring.maps import scaled_features
 
     *_, maps = scene
     assert maps.chance == pytest.approx(float(maps.density.mean()))

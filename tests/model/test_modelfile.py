@@ -7,8 +7,8 @@ import json
 import numpy as np
 import pytest
 
-from posevote.model.appearance import AppearanceModel
-from posevote.model.modelfile import FORMAT_VERSION, load_model, save_model
+from posevote.appearance.model import AppearanceModel
+from posevote.model.modelfile import FORMAT_VERSION, OLDEST_VERSION, load_model, save_model
 from posevote.model.training import TrainedModel
 
 
@@ -121,7 +121,7 @@ def test_model_file_errors(tmp_path, toy_model):
 
 @pytest.mark.parametrize(("version", "message"), [
     (FORMAT_VERSION + 1, "is newer than this posevote reads"),
-    (FORMAT_VERSION - 1, "older posevote .* retrain"),
+    (OLDEST_VERSION - 1, "older posevote .* retrain"),
     ("3", "is not an integer"),
 ])
 def test_other_format_versions_are_refused(tmp_path, toy_model, version, message):
@@ -129,6 +129,34 @@ def test_other_format_versions_are_refused(tmp_path, toy_model, version, message
     _rewrite(tmp_path / "m.npz", tmp_path / "v.npz", header={"version": version})
     with pytest.raises(ValueError, match=f"v.npz: .*{message}"):
         load_model(tmp_path / "v.npz")
+
+
+def _version_5(params):
+    """An estimator's parameters as version 5 wrote them (its switches by their old names)."""
+    old = dict(params)
+    refine, templates = old.pop("refine"), old.pop("templates")
+    old.update(fitting=refine["fit"], local_refinement=refine["local"] is not None)
+    if templates is not None:
+        old["search"] = {**old["search"], "rerank": "template"}
+    return old
+
+
+@pytest.mark.parametrize(("preset", "n_instances"), [
+    ("default", 1), ("cluttered", 1), ("turntable", 1), ("category", 10)])
+def test_version_5_parameters_are_read_as_the_steps_they_ran(tmp_path, toy_model, preset,
+                                                              n_instances):
+    from posevote import PoseEstimator
+    from posevote._options import params_to_json
+
+    params = params_to_json(PoseEstimator.from_preset(preset).get_params(deep=False))
+    save_model(tmp_path / "m.npz", _trained(toy_model()), _version_5(params))
+    _rewrite(tmp_path / "m.npz", tmp_path / "v5.npz", header={"version": 5})
+    from posevote.model import modelfile
+
+    assert modelfile._version_5_params(_version_5(params), n_instances) == params
+    _, read = load_model(tmp_path / "v5.npz")
+    if n_instances == 1:
+        assert read == params
 
 
 def test_bad_arrays_and_header_values_are_refused(tmp_path, toy_model):
@@ -149,7 +177,7 @@ def test_bad_arrays_and_header_values_are_refused(tmp_path, toy_model):
 def test_appearance_arrays_round_trip_and_are_checked(tmp_path, toy_model):
     model = toy_model()
     window = (48, 48)
-    from posevote.features.appearance import descriptor_length
+    from posevote.features.hog import descriptor_length
 
     length = descriptor_length(window)
     look = AppearanceModel(window=window, descriptors=np.ones((3, length), np.float32),

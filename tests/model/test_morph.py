@@ -8,13 +8,13 @@ from posevote import PoseEstimator
 from posevote.data import object_box
 from posevote.features import EdgeFeatures
 from posevote.features.edges import extract_edges, normalize_features
-from posevote.inference.search import viewpoint_features
 from posevote.model.morph import (
     ViewCrops,
     morphed_positions,
     view_neighbours,
     view_shifts,
 )
+from posevote.scoring.score import viewpoint_features
 
 
 def test_view_neighbours_pairs_views_of_one_instance():

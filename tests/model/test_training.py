@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from posevote.inference.search import SearchOptions
 from posevote.model.pruning import PRESETS
 from posevote.model.training import train_model
+from posevote.templates import TemplateOptions
 
 
 def test_bad_training_input(synthetic_training):
@@ -108,12 +108,11 @@ def test_extending_a_model_equals_training_on_everything(synthetic_training, dra
 
     boxes = np.array([object_box(img) for img in scaled])
     masks = [img > 0.05 for img in scaled]              # the outlines are carried too
-    search = SearchOptions(rerank="template")          # and the templates
-    whole = PoseEstimator(prune="moderate", search=search).fit(scaled, az, boxes=boxes,
-                                                                masks=masks, instances=names)
-    first = PoseEstimator(prune="moderate", search=search).fit(scaled[:9], az[:9],
-                                                                boxes=boxes[:9], masks=masks[:9],
-                                                                instances=names[:9])
+    templates = TemplateOptions()                        # and the templates
+    whole = PoseEstimator(prune="moderate", templates=templates).fit(
+        scaled, az, boxes=boxes, masks=masks, instances=names)
+    first = PoseEstimator(prune="moderate", templates=templates).fit(
+        scaled[:9], az[:9], boxes=boxes[:9], masks=masks[:9], instances=names[:9])
     first.save(tmp_path / "a.npz")
     grown = PoseEstimator.load(tmp_path / "a.npz").partial_fit(
         scaled[9:], az[9:], boxes=boxes[9:], masks=masks[9:], instances=names[9:])
@@ -200,7 +199,7 @@ def test_extending_with_origins_equals_training_on_everything(synthetic_training
 
 def test_extending_needs_what_can_be_redone(synthetic_training):
     from posevote import NotFittedError, PoseEstimator
-    from posevote.model.appearance import AppearanceOptions
+    from posevote.appearance import AppearanceOptions
 
     images, az, boxes = synthetic_training
     with pytest.raises(NotFittedError):

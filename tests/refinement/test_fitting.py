@@ -2,9 +2,8 @@ import numpy as np
 import pytest
 
 from posevote.geometry import angle_difference, viewing_direction
-from posevote.inference.search import ProbeSet
-from posevote.refinement import find_modes, refine_mode
-from posevote.refinement.fitting import peak_viewpoint
+from posevote.inference.probes import ProbeSet
+from posevote.refinement.fitting import find_modes, peak_viewpoint, refine_mode
 
 
 def synthetic_probes(mu_az, mu_alpha=0.05, mu_scale=1.04, second=None, cusp=False):

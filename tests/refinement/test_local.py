@@ -4,13 +4,14 @@ import numpy as np
 import pytest
 
 from posevote.features.edges import EdgeFeatures, extract_edges
-from posevote.inference.search import SearchOptions, SearchSetup, image_maps, scale_maps
+from posevote.inference.setup import SearchOptions, SearchSetup
 from posevote.model.density import build_model
 from posevote.model.kernels import K1_CUTOFF
-from posevote.refinement import find_modes, polish_pose, refine_mode
+from posevote.refinement.fitting import find_modes, refine_mode
 from posevote.refinement.local import (
     in_frame,
     local_refine,
+    polish_pose,
     probe_pose,
     profile_refine,
     refine_viewpoint,
@@ -18,6 +19,8 @@ from posevote.refinement.local import (
     unit_score,
 )
 from posevote.results import Hypothesis
+from posevote.scoring.maps import scaled_features
+from posevote.scoring.score import narrow_maps
 
 
 @pytest.fixture(scope="module")
@@ -28,7 +31,7 @@ def scene(fitted_estimator, draw):
     img = draw(np.radians(60.0), scale=1.05, inplane=np.radians(4.0), centre=(66.0, 61.0))
     probes, _ = est.probe(img)
     feats = extract_edges(img, est.edges, training=False)
-    fine = image_maps(feats, img.shape, est.setup())
+    fine = narrow_maps(feats, img.shape, est.setup())
     x, y, w, h = object_box(img)
     return est, probes, fine, (x + (w - 1) / 2, y + (h - 1) / 2)
 
@@ -93,7 +96,7 @@ def test_profile_refine_lands_between_training_views(scene):
     assert abs(np.log(held.scale / anchor.scale)) <= 0.02 + 1e-9
 
 
-def test_profile_refine_weighs_the_viewpoints_by_their_correlation(scene):
+def test_profile_refine_weighs_the_viewpoints_by_their_weight(scene):
     from posevote.refinement.fitting import neighbour_viewpoints
 
     est, probes, fine, _ = scene
@@ -108,20 +111,20 @@ def test_profile_refine_weighs_the_viewpoints_by_their_correlation(scene):
 
     # A correlation alike everywhere moves nothing; the pose returned is scored
     # as the profile's were.
-    weighed = profile_refine(probes, mode, est.model_, fine, correlate=flat, **kw)
+    weighed = profile_refine(probes, mode, est.model_, fine, weigh=flat, **kw)
     assert weighed == replace(plain, score=plain.score * 0.5) and plain.refined
     assert seen == [len(neighbour_viewpoints(probes, mode, radius_steps=2.5)), 1]
 
     def ahead(hyps):
-        # Only the views past the plain fit look like the object.
-        return np.array([1.0 if np.sin(h.azimuth - plain.azimuth) > 0 else 0.0 for h in hyps])
+        # Only the views past the plain fit look like the object (the others keep a floor).
+        return np.array([1.0 if np.sin(h.azimuth - plain.azimuth) > 0 else 0.01 for h in hyps])
 
-    moved = profile_refine(probes, mode, est.model_, fine, correlate=ahead, **kw)
+    moved = profile_refine(probes, mode, est.model_, fine, weigh=ahead, **kw)
     assert np.sin(moved.azimuth - plain.azimuth) > np.sin(np.radians(1.0))
 
 
 def test_start_near_keeps_to_the_mode_object():
-    from posevote.inference import ProbeSet
+    from posevote.inference.probes import ProbeSet
     from posevote.refinement.local import start_near
 
     # Viewpoint 1's best probe (score 0.9) sits on clutter far from the mode;
@@ -208,19 +211,21 @@ def test_rescale_anchor_finds_the_scale_in_object_units(synthetic_training, draw
     a = int(np.argmax(probes.score[mode, :, s]))
     start = in_frame(probe_pose(probes, mode, a, s), factor)
     half = 0.5 * float(np.median(np.diff(np.log(probes.scale))))
-    whole = polish_pose(start, est.model_, scale_maps(feats, shape, est.setup())[s], **kw,
+    whole = polish_pose(start, est.model_,
+                        narrow_maps(*scaled_features(feats, shape, factor), est.setup(),
+                                    scale=factor), **kw,
                         scale_bounds=(float(np.exp(-half)), float(np.exp(half))))
     assert in_frame(whole, 1.0 / factor).position == pytest.approx(anchor.position, abs=1e-6)
     with pytest.raises(ValueError, match="features and shape"):
-        local_refine(probes, mode, anchor, est.model_, est.setup(), fitting=True,
-                     object_units=True)
+        local_refine(probes, mode, anchor, est.model_, est.setup(), profile=True,
+                     narrow=lambda: None, scale_step=0.1, object_units=True)
 
 
 def test_compass_search_kernel_agrees_with_reference():
     from posevote.features import EdgeFeatures
-    from posevote.inference.maps import prepare_test
-    from posevote.inference.voting import gather_score
     from posevote.refinement.local import _compass_search, compass_search_reference
+    from posevote.scoring.maps import prepare_test
+    from posevote.scoring.score import gather_score
 
     rng = np.random.default_rng(8)
     model_xy = rng.uniform(-25, 25, (120, 2))
@@ -263,7 +268,7 @@ def test_compass_search_kernel_agrees_with_reference():
     assert best == pytest.approx(best_ref, rel=1e-9) and best > initial
 
 
-def test_rescale_anchor_weighs_each_scale_by_its_correlation(synthetic_training, draw):
+def test_rescale_anchor_weighs_each_scale_by_its_weight(synthetic_training, draw):
     from posevote.refinement.local import rescale_anchor
 
     est, img, probes, feats, mode = _rescale_case(synthetic_training, draw)
@@ -271,14 +276,14 @@ def test_rescale_anchor_weighs_each_scale_by_its_correlation(synthetic_training,
     plain, s = rescale_anchor(*args)
     seen = []
 
-    def correlate(hyps):
+    def weigh(hyps):
         seen.append(len(hyps))
-        # The edges' choice does not look like the object; the others do.
-        return np.array([0.0 if abs(h.scale - plain.scale) < 1e-9 else 1.0 for h in hyps])
+        # The edges' choice does not look like the object (a floor); the others do.
+        return np.array([0.01 if abs(h.scale - plain.scale) < 1e-9 else 1.0 for h in hyps])
 
-    weighed, s2 = rescale_anchor(*args, correlate=correlate)
+    weighed, s2 = rescale_anchor(*args, weigh=weigh)
     assert seen == [len(probes.scale)] and s2 != s
-    assert rescale_anchor(*args, correlate=lambda hyps: np.ones(len(hyps)))[1] == s
+    assert rescale_anchor(*args, weigh=lambda hyps: np.ones(len(hyps)))[1] == s
 
 
 def _square_scene(line_drawing, scale, position=(90.0, 90.0)):
@@ -346,7 +351,7 @@ def test_refine_viewpoint_reads_the_viewpoint_between_training_views(line_drawin
     setup = SearchSetup(options=SearchOptions(), position_sigma=2.0, edge_spacing=2.0,
                         viewpoint_kappa=300.0)
     view = _rectangle(segments, 4.0, 3.0)
-    maps = image_maps(EdgeFeatures(xy=view.xy + 80.0, theta=view.theta), (160, 160), setup)
+    maps = narrow_maps(EdgeFeatures(xy=view.xy + 80.0, theta=view.theta), (160, 160), setup)
     start = Hypothesis(azimuth=0.0, elevation=0.0, inplane=0.0, scale=1.0, position=(80.0, 80.0),
                        box=(57.0, 57.0, 46.0, 46.0), score=1.0, refined=True)
     found = refine_viewpoint(start, model, maps, setup, lambda poses: np.ones(len(poses)))

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from posevote.geometry import viewing_direction
-from posevote.inference.search import ProbeSet
+from posevote.inference.probes import ProbeSet
 from posevote.refinement.probability import (
     MODE_RADIUS,
     mode_probabilities,

@@ -3,7 +3,7 @@ import pytest
 
 from posevote.features.edges import EdgeFeatures
 from posevote.geometry import rotate_points
-from posevote.inference.search import SearchOptions, SearchSetup, image_maps
+from posevote.inference.setup import SearchOptions, SearchSetup
 from posevote.model.density import build_model
 from posevote.model.kernels import K1_CUTOFF, ORIENTATION_KAPPA, orientation_kernel, position_kernel
 from posevote.refinement.local import polish_pose
@@ -16,6 +16,7 @@ from posevote.refinement.share import (
     share_scale,
 )
 from posevote.results import Hypothesis
+from posevote.scoring.score import narrow_maps
 
 _SETUP = SearchSetup(options=SearchOptions(), position_sigma=2.0, edge_spacing=2.0,
                      viewpoint_kappa=10.0)
@@ -39,7 +40,7 @@ def _pose(scale, position=(80.0, 80.0)):
 
 
 def _maps(view):
-    return image_maps(EdgeFeatures(xy=view.xy + 80.0, theta=view.theta), (160, 160), _SETUP)
+    return narrow_maps(EdgeFeatures(xy=view.xy + 80.0, theta=view.theta), (160, 160), _SETUP)
 
 
 def test_edge_share_counts_the_selected_edges_explained(line_drawing):
@@ -79,7 +80,7 @@ def test_edge_shares_sum_every_pair_at_every_scale(line_drawing):
     rng = np.random.default_rng(0)
     image = EdgeFeatures(xy=np.concatenate([view.xy * 1.03 + 80.0, rng.uniform(50, 110, (60, 2))]),
                          theta=np.concatenate([view.theta, rng.uniform(0, np.pi, 60)]))
-    maps = image_maps(image, (160, 160), _SETUP)
+    maps = narrow_maps(image, (160, 160), _SETUP)
     pose = Hypothesis(azimuth=0.0, elevation=0.0, inplane=0.2, scale=1.0, position=(80.5, 79.0),
                       box=(60.0, 60.0, 40.0, 40.0), score=0.5, refined=True)
     selected = rng.random(len(maps.xy)) < 0.8
@@ -132,6 +133,6 @@ def test_share_scale_leaves_a_pose_with_nothing_to_explain(line_drawing):
     segments, square = line_drawing
     model = _model(segments(square(20.0)))
     far = _pose(1.0, position=(20.0, 20.0))
-    maps = image_maps(EdgeFeatures(xy=segments(square(10.0)).xy + 130.0,
+    maps = narrow_maps(EdgeFeatures(xy=segments(square(10.0)).xy + 130.0,
                                    theta=segments(square(10.0)).theta), (160, 160), _SETUP)
     assert share_scale(far, model, maps, _SETUP) is far

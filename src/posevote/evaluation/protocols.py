@@ -20,7 +20,8 @@ from typing import Any
 import numpy as np
 
 from posevote.data.training_set import TrainingSet, read_coil, read_epfl
-from posevote.refinement.instance import RecognitionOptions
+from posevote.recognition import RecognitionOptions
+from posevote.refinement import RefineOptions
 
 #: The COIL-100 categories of Fig. 5: (seen instances, unseen instances, half-turn symmetric).
 COIL_CATEGORIES: dict[str, tuple[tuple[int, ...], tuple[int, ...], bool]] = {
@@ -111,12 +112,13 @@ class Protocol:
 PROTOCOLS = ("coil-category", "coil-loio", "epfl-single", "epfl-10-10", "epfl-cv")
 
 _NO_RECOGNITION = {"recognition": None}
+# The paper's rows without fitting: the modes are the best probes.
+_NO_FIT = {"refine": RefineOptions(fit=False, rescale=False)}
 
 _ABLATION = (
-    Row(name="no weights", params={"weights": False, "fitting": False, **_NO_RECOGNITION}),
-    Row(name="weights", params={"fitting": False, **_NO_RECOGNITION}),
-    Row(name="weights + pruning", params={"fitting": False, "prune": "moderate",
-                                          **_NO_RECOGNITION}),
+    Row(name="no weights", params={"weights": False, **_NO_FIT, **_NO_RECOGNITION}),
+    Row(name="weights", params={**_NO_FIT, **_NO_RECOGNITION}),
+    Row(name="weights + pruning", params={"prune": "moderate", **_NO_FIT, **_NO_RECOGNITION}),
     Row(name="weights + pruning + fitting", params={"prune": "moderate", **_NO_RECOGNITION}),
     Row(name="refined with instance model (paper: near the category's mode)",
         params={"prune": "moderate", "recognition": RecognitionOptions(search=False)},
@@ -257,7 +259,7 @@ def epfl_single(data: str | Path, *, cars: Sequence[int] = (1,)) -> Protocol:
                      "tested, full frames (the estimator finds the car)."),
         splits=tuple(splits),
         rows=(Row(name="paper: weights + fitting", params={
-                  "local_refinement": False, "morph_views": False,
+                  "refine": RefineOptions(), "morph_views": False,
                   "search__viewpoint_subdivisions": 1}),
               Row(name="turntable preset: + local refinement + morphing", params={},
                   note="beyond the paper: features morphed between training views, two "

@@ -112,6 +112,15 @@ def write_csv(records: Sequence[dict[str, Any]], path: Path) -> None:
     atomic_write_text(path, buf.getvalue())
 
 
+def row_steps(preset: str, params: dict[str, Any]) -> str:
+    """The steps a row's estimator runs, in order (:func:`posevote.pipeline.describe`)."""
+    from posevote.estimator import PoseEstimator
+    from posevote.pipeline import Settings, describe
+
+    est = PoseEstimator.from_preset(preset, **params)
+    return " → ".join(describe(Settings.of(est.get_params(deep=False))))
+
+
 def write_report(protocol: Protocol, summary: dict[str, Any],
                  records: Sequence[dict[str, Any]], out: Path) -> None:
     """Write ``summary.json``, ``results.csv``, ``report.md`` and the plots into ``out``."""
@@ -131,7 +140,9 @@ def write_report(protocol: Protocol, summary: dict[str, Any],
     rows = "\n".join(f"- **{r.name}**: " + (
         "not available" if r.params is None else
         ", ".join(f"`{k}={v!r}`" for k, v in r.params.items()) or "the preset as it is")
-        + (f" ({r.note})" if r.note else "") for r in protocol.rows)
+        + (f" ({r.note})" if r.note else "")
+        + ("" if r.params is None else f"; steps: {row_steps(protocol.preset, r.params)}")
+        for r in protocol.rows)
     text = (f"# {protocol.name}\n\n{protocol.description}\n{sub}\n"
             f"Every row starts from the `{protocol.preset}` preset (posevote.presets, "
             f"docs/DEFAULTS.md) and changes:\n\n{rows}\n\n{markdown_table(summary)}\n"

@@ -43,6 +43,7 @@ import numpy as np
 
 from posevote._io import atomic_write_text, folder_lock, read_records, repair_records
 from posevote._parallel import ordered_map
+from posevote.batch import run_image
 from posevote.estimator import PoseEstimator
 from posevote.evaluation.metrics import box_iou, flip_threshold_deg, summarize_errors
 from posevote.evaluation.protocols import Protocol, Row, Split
@@ -64,16 +65,14 @@ def pose_error_deg(estimate: float, truth: float, *, half_turn: bool) -> float:
 
 # --- the worker side ------------------------------------------------------------------
 
-_ESTIMATORS: dict[str, PoseEstimator] = {}
-
-
-def estimate_record(model_path: str, task: dict[str, Any]) -> dict[str, Any]:
-    """Estimate one test image and score it (runs in a worker process).
+def estimate_record(est: PoseEstimator, task: dict[str, Any]) -> dict[str, Any]:
+    """Estimate one test image and score it (in a worker process, through
+    :func:`posevote.batch.run_image`).
 
     Parameters
     ----------
-    model_path : str
-        Model file to load (cached per process).
+    est : PoseEstimator
+        The row's model.
     task : dict
         ``image``, ``instance``, ``group``, ``truth`` (radians), ``box``
         (true box or None), ``half_turn``, ``row``, ``split``, ``seen_instance``.
@@ -83,10 +82,6 @@ def estimate_record(model_path: str, task: dict[str, Any]) -> dict[str, Any]:
     dict
         The record (fields :data:`RECORD_FIELDS`).
     """
-    est = _ESTIMATORS.get(model_path)
-    if est is None:
-        _ESTIMATORS.clear()
-        est = _ESTIMATORS[model_path] = PoseEstimator.load(model_path)
     start = time.perf_counter()
     result = est.estimate(task["image"])
     seconds = time.perf_counter() - start
@@ -317,8 +312,8 @@ def _run_locked(protocol: Protocol, out: Path, chosen: list[Row], *, jobs: int, 
     for model_file, record_path, tasks in plan:
         if not tasks:
             continue
-        results = ordered_map(estimate_record, [(model_file, t) for t in tasks], jobs=jobs,
-                              scheduler=scheduler)
+        results = ordered_map(run_image, [(estimate_record, model_file, {}, t) for t in tasks],
+                              jobs=jobs, scheduler=scheduler)
         with record_path.open("a", encoding="utf-8") as fh:
             for rec in results:
                 fh.write(json.dumps(rec) + "\n")

@@ -46,6 +46,7 @@ from numpy.typing import NDArray
 
 from posevote._io import atomic_write_text
 from posevote._parallel import ordered_map
+from posevote.batch import run_image
 from posevote.camera import (
     Camera,
     object_height_from_distances,
@@ -187,15 +188,10 @@ def true_translation(view: RenderedView, pasted: PastedView, camera: Camera
     return camera.ray_point(float(u), float(v), float(view.origin[2]) / pasted.scale)
 
 
-_ESTIMATORS: dict[str, PoseEstimator] = {}
-
-
-def estimate_record(model_path: str, setup: SphereSetup, seed: int) -> dict[str, Any]:
-    """Render test image ``seed``, estimate it and score it (runs in a worker process)."""
-    est = _ESTIMATORS.get(model_path)
-    if est is None:
-        _ESTIMATORS.clear()
-        est = _ESTIMATORS[model_path] = PoseEstimator.load(model_path)
+def estimate_record(est: PoseEstimator, item: tuple[SphereSetup, int]) -> dict[str, Any]:
+    """Render test image ``seed`` of ``item = (setup, seed)``, estimate it and score it (in a
+    worker process, through :func:`posevote.batch.run_image`)."""
+    setup, seed = item
     rng = np.random.default_rng(seed)
     els = setup.elevations_deg
     az = float(rng.uniform(0.0, 2 * np.pi))
@@ -343,7 +339,8 @@ def run_sphere(setup: SphereSetup, out: str | Path, *, jobs: int = 1, scheduler:
     records = []
     if progress is not None:
         progress(0, len(seeds))
-    for rec in ordered_map(estimate_record, [(str(model_path), setup, s) for s in seeds],
+    for rec in ordered_map(run_image, [(estimate_record, str(model_path), {}, (setup, s))
+                                       for s in seeds],
                            jobs=jobs, scheduler=scheduler):
         records.append(rec)
         if progress is not None:

@@ -21,17 +21,16 @@ from numpy.typing import NDArray
 
 from posevote.features.edges import EdgeFeatures
 from posevote.geometry import rotate_points
-from posevote.inference.maps import TestMaps, prepare_test
-from posevote.inference.search import ProbeSet, SearchSetup, viewpoint_features
-from posevote.inference.voting import density_at
+from posevote.inference.probes import ProbeSet
+from posevote.inference.setup import SearchSetup
 from posevote.model.density import PoseModel
 from posevote.model.kernels import K1_CUTOFF, ORIENTATION_KAPPA
+from posevote.scoring.maps import TestMaps, prepare_test
+from posevote.scoring.score import MIN_BOX_EDGES, density_at, viewpoint_features
 
 #: Probes re-ranked: chosen on the five epfl-cv folds among 6, 12, 30 and 60
 #: (docs/DEFAULTS.md).
 COVERAGE_CANDIDATES = 12
-#: Fewer test edges than this in a probe's box: it explains nothing.
-MIN_BOX_EDGES = 5
 _FLOOR = 1e-6
 #: Width of the model's density kernel in cells of its coarse grid.
 COARSE_KERNEL = 2.0

@@ -1,10 +1,13 @@
-"""Pose inference (Fig. 2): probes of p(w) over viewpoint x in-plane angle x scale.
+"""The search (Fig. 2): probes of p(w) over viewpoint x in-plane angle x scale.
 
 For each discrete viewpoint ``w1`` the training features of nearby training
 views (pose kernel K1) are collected with vote weights ``wt_i * K1``; for
 each in-plane/scale step ``w2`` the translation ``w3`` is found by voting
-(:mod:`posevote.inference.voting`). The result is a :class:`ProbeSet`: the
-set of (pose, score) pairs approximating p(w) at discrete probes.
+(:mod:`posevote.inference.voting`). The result is a
+:class:`~posevote.inference.probes.ProbeSet`: the set of (pose, score) pairs
+approximating p(w) at discrete probes. :func:`probe` runs the search on the
+grid of a :class:`~posevote.inference.setup.SearchSetup`, in one of the
+strategies :func:`search_strategy` names.
 """
 
 from __future__ import annotations
@@ -13,27 +16,25 @@ import threading
 import weakref
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, replace
-from functools import cached_property
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from posevote._options import Options
-from posevote.features.edges import EdgeFeatures
 from posevote.geometry import viewing_direction
-from posevote.inference.maps import MAX_MAP_BYTES, TestMaps, prepare_test, scaled_features
+from posevote.inference.probes import ProbeSet, probe_spacing
+from posevote.inference.setup import SearchOptions, SearchSetup
 from posevote.inference.voting import (
     polish_translations,
     search_translations,
     strongest_voters,
-    subsample_features,
 )
-from posevote.model.density import PoseModel, near_views
-from posevote.model.kernels import K1_CUTOFF, ORIENTATION_KAPPA
-from posevote.model.morph import morphed_positions
+from posevote.model.density import PoseModel
+from posevote.model.kernels import K1_CUTOFF
 from posevote.results import Hypothesis
+from posevote.scoring.maps import TestMaps
+from posevote.scoring.score import median_spacing, subsample_features, viewpoint_features
 
 #: Training features that vote per probe (the heaviest; all count in the
 #: exact score): the vote only has to find the peak's neighbourhood.
@@ -44,12 +45,6 @@ VOTE_CANDIDATES = 2
 #: hold, and the most in-plane angles or scales: a grid past these is refused
 #: before anything is allocated.
 MAX_PROBES = 2_000_000
-MAX_GRID_STEPS = 400
-#: The re-rankings of the best probes ``SearchOptions.rerank`` names.
-RERANKINGS = (None, "coverage", "template")
-#: Width of the local chance level, in search kernel widths (``chance_correction``):
-#: chosen on the five epfl-cv folds among 2, 4, 6 and 8 (docs/DEFAULTS.md).
-CHANCE_WIDTH = 4.0
 #: A search near a known pose (:func:`probe` with ``near``) probes, with
 #: per-scale maps, the scales within this many grid steps of its scale:
 #: chosen on the five epfl-cv folds (better or equal on each than all six
@@ -60,9 +55,6 @@ NEAR_SCALE_STEPS = 1.5
 #: those that score best on the first: chosen on the five epfl-cv folds (the
 #: same share under 45 degrees on each fold as all scales everywhere).
 RANKING_VIEWPOINTS = 1.0 / 3.0
-#: The scales a search may be given (``SearchOptions.scale_range``): below, an
-#: object of the training size is a few pixels; above, its maps outgrow memory.
-SCALE_LIMITS = (0.05, 20.0)
 #: On the viewing sphere (viewpoints at several elevations) the ranking search
 #: probes the every-other scales first at a subset of viewpoints this many grid
 #: spacings apart, then at every viewpoint within that reach of the best
@@ -75,297 +67,6 @@ COARSE_STEPS = 2.0
 #: spacings of them (the fit's reach, ``refinement.fitting.FIT_RADIUS_STEPS``).
 POLISHED_MODES = 3
 POLISH_REACH_STEPS = 2.5
-#: Several objects in one image: a box overlapping one already found by more
-#: than this IoU is the same object found again.
-OBJECT_OVERLAP = 0.3
-#: Several objects: the edges this far around a found box (a share of its
-#: size) go with it, so that its outline does not attract the next search.
-OBJECT_MARGIN = 0.1
-
-
-@dataclass(frozen=True, kw_only=True, repr=False)
-class SearchOptions(Options):
-    """The grid of Fig. 2 and how each probe is scored.
-
-    Attributes
-    ----------
-    viewpoint_step_deg : float or None, default None
-        Probe turntable models on a regular azimuth grid of this step
-        instead of at the training viewpoints (dense or pooled training
-        sets; :func:`viewpoint_grid`).
-    viewpoint_subdivisions : int, default 1
-        Probes per training-viewpoint gap: 1 probes the training viewpoints.
-    inplane_range_deg : (float, float), default (0, 0)
-        In-plane angles searched, degrees.
-    inplane_step_deg : float, default 10.0
-        Step of the in-plane search, degrees.
-    scale_range : (float, float), default (0.9, 1.1)
-        Scales searched, relative to the training images.
-    scale_steps : int, default 3
-        Scales searched (log-spaced). Keep the log-scale step near the
-        in-plane step in radians when widening the range.
-    object_kernel : bool, default False
-        Fix the position kernel in object units: the test features are
-        divided by each searched scale and searched at scale 1, so that
-        small scales are not favoured by a relatively wider tolerance
-        (beyond the paper).
-    chance_correction : bool, default False
-        Score each probe by what it explains above the local chance level:
-        the search's density less its mean over orientations around each
-        place, blurred at ``CHANCE_WIDTH`` kernel widths
-        (:func:`posevote.inference.maps.prepare_test`; beyond the paper).
-    density_cap : float or None, default None
-        Saturate the search's test density at this value (a model feature
-        is explained or not, however dense the edges around it); None: the
-        paper's unbounded density.
-    max_search_features : int or None, default None
-        At most about this many training features per viewpoint take part in
-        the grid search (an even subset), for pooled category models; the
-        refinements read all of them.
-    rerank : {None, "coverage", "template"}, default None
-        Re-rank the search's best probes (beyond the paper): ``"coverage"``
-        by the share of the test edges in their box that they explain
-        (:mod:`posevote.inference.coverage`), ``"template"`` by how well the
-        image matches the nearest training view's grey levels there
-        (:mod:`posevote.inference.templates`; the templates are learnt when
-        the model is fitted with it); None: by their score alone.
-    """
-
-    viewpoint_step_deg: float | None = None
-    viewpoint_subdivisions: int = 1
-    inplane_range_deg: tuple[float, float] = (0.0, 0.0)
-    inplane_step_deg: float = 10.0
-    scale_range: tuple[float, float] = (0.9, 1.1)
-    scale_steps: int = 3
-    object_kernel: bool = False
-    chance_correction: bool = False
-    density_cap: float | None = None
-    max_search_features: int | None = None
-    rerank: str | None = None
-
-    def __post_init__(self) -> None:
-        self._number("viewpoint_step_deg", low=0.1, high=180.0, optional=True)
-        self._number("viewpoint_subdivisions", low=1, high=16, integer=True)
-        low, high = self._pair("inplane_range_deg")
-        if high - low >= 360:
-            self._fail("inplane_range_deg", "a span under 360 degrees", self.inplane_range_deg)
-        self._number("inplane_step_deg", low=0.1, high=180.0)
-        low, high = self._pair("scale_range")
-        if not SCALE_LIMITS[0] <= low <= high <= SCALE_LIMITS[1]:
-            self._fail("scale_range", f"(low, high) with {SCALE_LIMITS[0]:g} <= low <= high "
-                       f"<= {SCALE_LIMITS[1]:g}", self.scale_range)
-        self._number("scale_steps", low=1, high=MAX_GRID_STEPS, integer=True)
-        for name in ("object_kernel", "chance_correction"):
-            self._flag(name)
-        if self.rerank not in RERANKINGS:
-            self._fail("rerank", f"one of {', '.join(map(repr, RERANKINGS))}", self.rerank)
-        self._number("density_cap", low=0.0, high=1e6, low_open=True, optional=True)
-        self._number("max_search_features", low=1, high=10_000_000, integer=True,
-                     optional=True)
-        n_inplane = len(self.grid()[0])
-        if n_inplane > MAX_GRID_STEPS:
-            self._fail("inplane_step_deg", f"a step giving at most {MAX_GRID_STEPS} in-plane "
-                       f"angles over inplane_range_deg (this gives {n_inplane})",
-                       self.inplane_step_deg)
-
-    def grid(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """The in-plane angles (radians, centred on the range) and scales searched (copies)."""
-        inplanes, scales = self._grid
-        return inplanes.copy(), scales.copy()
-
-    @cached_property
-    def _grid(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        # Worked out once per options: a search asks for it several times an image.
-        a_lo, a_hi = np.radians(self.inplane_range_deg)
-        step = np.radians(self.inplane_step_deg)
-        n_a = int(np.floor((a_hi - a_lo) / step + 1e-9)) + 1
-        inplanes = (a_lo + a_hi) / 2.0 + (np.arange(n_a) - (n_a - 1) / 2.0) * step
-        lo, hi = self.scale_range
-        scales = np.geomspace(lo, hi, self.scale_steps) if self.scale_steps > 1 \
-            else np.array([np.sqrt(lo * hi)])
-        return inplanes, scales
-
-    def scale_step(self) -> float:
-        """The grid's log-scale step (0 for one scale)."""
-        scales = self.grid()[1]
-        return float(np.median(np.diff(np.log(scales)))) if len(scales) > 1 else 0.0
-
-
-@dataclass(frozen=True, kw_only=True)
-class SearchSetup:
-    """Everything a search of one fitted model needs besides the image.
-
-    Attributes
-    ----------
-    options : SearchOptions
-    position_sigma : float
-        The narrow (refinement) position kernel, pixels at scale 1.
-    edge_spacing : float
-        Spacing of the test edge points, pixels (normalises phi).
-    viewpoint_kappa : float
-        Concentration of the pose kernel K1.
-    use_weights : bool
-        Use the features' weights (Eq. 4).
-    n_threads : int
-        Viewpoints probed at once.
-    """
-
-    options: SearchOptions
-    position_sigma: float
-    edge_spacing: float
-    viewpoint_kappa: float
-    use_weights: bool = True
-    n_threads: int = 1
-
-
-def search_sigma(model: PoseModel, setup: SearchSetup) -> float:
-    """Position kernel width used while searching, pixels.
-
-    A probe lies up to half a grid step from the true in-plane angle and
-    scale; a feature at radius ``r`` is then displaced by about
-    ``r * step / 2``. The kernel is widened by that amount (in quadrature)
-    so that the probe nearest the truth keeps its score, instead of losing
-    it to clutter between grid steps.
-    """
-    inplanes, scales = setup.options.grid()
-    r = model.rms_radius * float(np.max(scales))
-    d_alpha = float(np.median(np.diff(inplanes))) if len(inplanes) > 1 else 0.0
-    d_log_s = setup.options.scale_step()
-    return float(np.sqrt(setup.position_sigma**2 + (r * d_alpha / 2.0) ** 2
-                         + (r * d_log_s / 2.0) ** 2))
-
-
-def image_maps(features: EdgeFeatures, shape: tuple[int, int], setup: SearchSetup, *,
-               sigma: float | None = None, scale: float = 1.0, search: bool = False,
-               region: tuple[int, int, int, int] | None = None) -> TestMaps:
-    """The test image tabulated at kernel width ``sigma`` (default: the narrow one).
-
-    ``density_cap`` and the local chance level apply to the search's maps
-    only: the narrow maps of the refinements keep the unsaturated density,
-    whose ridges give the precise alignment. ``region`` tabulates a narrow
-    map only there (:func:`posevote.inference.maps.prepare_test`).
-    """
-    width = setup.position_sigma if sigma is None else sigma
-    local = search and setup.options.chance_correction
-    return prepare_test(features, shape, position_sigma=width,
-                        orientation_kappa=ORIENTATION_KAPPA,
-                        edge_spacing=setup.edge_spacing / scale,
-                        density_cap=setup.options.density_cap if search else None,
-                        chance_width=CHANCE_WIDTH * width if local else None, region=region)
-
-
-def scale_maps(features: EdgeFeatures, shape: tuple[int, int], setup: SearchSetup, *,
-               sigma: float | None = None, search: bool = False,
-               scales: NDArray[np.float64] | None = None) -> list[TestMaps]:
-    """One set of maps per scale, the features divided by it (object units).
-
-    ``scales`` defaults to the search grid's; a search narrowed to a few
-    scales (the verification's) passes its own.
-    """
-    grid = setup.options.grid()[1] if scales is None else scales
-    return [image_maps(*scaled_features(features, shape, float(s)), setup, sigma=sigma,
-                       scale=float(s), search=search) for s in grid]
-
-
-def map_bytes(shape: tuple[int, int], options: SearchOptions) -> int:
-    """The most memory the search's test maps of an image of ``shape`` take, bytes (planes
-    of pixels; a wide kernel's coarse grid takes less)."""
-    h, w = shape
-    if not options.object_kernel:
-        return 16 * h * w * 4
-    return sum(16 * int(np.ceil(h / s)) * int(np.ceil(w / s)) * 4 for s in options.grid()[1])
-
-
-def search_maps(features: EdgeFeatures, shape: tuple[int, int], model: PoseModel,
-                setup: SearchSetup) -> TestMaps | list[TestMaps]:
-    """The maps the search runs on: one set, or one per scale (``object_kernel``).
-
-    Raises
-    ------
-    ValueError
-        If they would take more than ``MAX_MAP_BYTES`` (checked before any
-        is made).
-    """
-    need = map_bytes(shape, setup.options)
-    if need > MAX_MAP_BYTES:
-        raise ValueError(f"the search's test maps of this {shape[1]} x {shape[0]} image take "
-                         f"{need / 2**30:.1f} GiB, over the limit of {MAX_MAP_BYTES / 2**30:.0f} "
-                         "GiB; downscale the image, or narrow SearchOptions.scale_range or "
-                         "scale_steps")
-    sigma = search_sigma(model, setup)
-    if not setup.options.object_kernel:
-        return image_maps(features, shape, setup, sigma=sigma, search=True)
-    return scale_maps(features, shape, setup, sigma=sigma, search=True)
-
-
-@dataclass(frozen=True, kw_only=True, eq=False)
-class ProbeSet:
-    """Discrete approximations of p(w) (the output of Fig. 2).
-
-    Attributes
-    ----------
-    azimuth, elevation : ndarray, shape (V,)
-        Probed viewpoints, radians.
-    inplane : ndarray, shape (A,)
-        Probed in-plane angles, radians.
-    scale : ndarray, shape (S,)
-        Probed scales.
-    score : ndarray, shape (V, A, S)
-        p(w) at the best translation of each probe.
-    translation : ndarray, shape (V, A, S, 2)
-        That translation: the reference point ``(u, v)``, pixels.
-    box : ndarray, shape (V, 2)
-        Object box width and height at each viewpoint, model units.
-    probed : ndarray of bool, shape (V, A, S), or None
-        The probes a ranking search probed (the others score 0 without
-        having been scored); None: every probe.
-    """
-
-    azimuth: NDArray[np.float64]
-    elevation: NDArray[np.float64]
-    inplane: NDArray[np.float64]
-    scale: NDArray[np.float64]
-    score: NDArray[np.float64]
-    translation: NDArray[np.float64]
-    box: NDArray[np.float64]
-    probed: NDArray[np.bool_] | None = None
-
-    @cached_property
-    def directions(self) -> NDArray[np.float64]:
-        """Viewing direction of each probed viewpoint, shape (V, 3)."""
-        return viewing_direction(self.azimuth, self.elevation)
-
-    @cached_property
-    def spacing(self) -> float:
-        """Median angle between a probed viewpoint and its nearest neighbour, radians (pi
-        for fewer than two); cached, as every fit of the probes' modes reads it."""
-        return median_spacing(self.directions)
-
-    def boxes(self) -> NDArray[np.float64]:
-        """Box ``(x, y, w, h)`` of every probe, pixels, shape (V, A, S, 4)."""
-        size = np.broadcast_to(self.box[:, None, None, :] * self.scale[None, None, :, None],
-                               self.translation.shape)
-        return np.concatenate([self.translation - size / 2.0, size], axis=-1)
-
-    @property
-    def turntable(self) -> bool:
-        """True when every probe has the same elevation (only azimuth varies)."""
-        return bool(np.ptp(self.elevation) < 1e-9) if len(self.elevation) else True
-
-
-def median_spacing(directions: NDArray[np.float64]) -> float:
-    """Median angle between a viewing direction and its nearest neighbour, radians (pi for
-    fewer than two)."""
-    if len(directions) < 2:
-        return float(np.pi)
-    cosines = np.clip(directions @ directions.T, -1.0, 1.0)
-    np.fill_diagonal(cosines, -1.0)
-    return float(np.median(np.arccos(cosines.max(axis=1))))
-
-
-def probe_spacing(probes: ProbeSet) -> float:
-    """Median angle between a probed viewpoint and its nearest neighbour."""
-    return probes.spacing
 
 
 def viewpoint_grid(model: PoseModel, *, subdivisions: int = 1, step: float | None = None
@@ -405,47 +106,8 @@ def viewpoint_grid(model: PoseModel, *, subdivisions: int = 1, step: float | Non
     return fine, np.full_like(fine, el[0])
 
 
-@dataclass(frozen=True, kw_only=True, eq=False)
-class ViewpointFeatures:
-    """The training features that describe one viewpoint (psi at w1).
-
-    Attributes
-    ----------
-    xy, theta : ndarray
-        Object-centred features of the training views near the viewpoint.
-    weight : ndarray
-        Vote weights ``wt_i * K1(w1, w_i)``, normalised to sum to 1.
-    box : ndarray, shape (2,)
-        Object box width and height at the viewpoint, model units.
-    """
-
-    xy: NDArray[np.float64]
-    theta: NDArray[np.float64]
-    weight: NDArray[np.float64]
-    box: NDArray[np.float64]
 
 
-def viewpoint_features(model: PoseModel, azimuth: float, elevation: float, *,
-                       viewpoint_kappa: float, use_weights: bool = True, k1_cutoff: float = 0.1
-                       ) -> ViewpointFeatures:
-    """Collect the training features of the views near a viewpoint (Eq. 1 at w1).
-
-    Training views whose pose kernel K1 is below ``k1_cutoff`` are left out
-    (the nearest view always takes part). With a morphed model (``model.shift``)
-    the features move toward the viewpoint (:mod:`posevote.model.morph`).
-    """
-    views, k1 = near_views(model, azimuth, elevation, kappa=viewpoint_kappa, k1_cutoff=k1_cutoff)
-    idx = model.features_of(views)
-    w = k1[model.view[idx]] * (model.weight[idx] if use_weights else 1.0)
-    total = w.sum()
-    xy = model.xy[idx]
-    if model.shift is not None and model.view_neighbour is not None:
-        xy = morphed_positions(xy, model.shift[idx], model.view[idx], azimuth,
-                               model.view_azimuth, model.view_neighbour, elevation=elevation,
-                               view_elevation=model.view_elevation)
-    return ViewpointFeatures(xy=xy, theta=model.theta[idx],
-                             weight=w / total if total > 0 else w,
-                             box=np.average(model.view_box[views], axis=0, weights=k1[views]))
 
 
 # A model's search features by viewpoint: the grid's viewpoints recur in every
@@ -522,7 +184,7 @@ def probe_poses(
         kernel fixed in image pixels, the paper's K2), or one per scale,
         each prepared from the test features divided by that scale
         (position kernel fixed in object units; see
-        :func:`posevote.inference.maps.scaled_features`).
+        :func:`posevote.scoring.maps.scaled_features`).
     azimuths, elevations : ndarray, shape (V,)
         Viewpoints to probe, radians.
     inplanes : ndarray, shape (A,)
@@ -628,7 +290,7 @@ def probe(model: PoseModel, maps: TestMaps | Sequence[TestMaps | None], setup: S
     ----------
     model : PoseModel
     maps : TestMaps or sequence of TestMaps
-        From :func:`search_maps` (or restricted to a window). Per-scale maps
+        From :func:`~posevote.inference.setup.search_maps` (or restricted to a window). Per-scale maps
         may hold None for scales not to be probed.
     setup : SearchSetup
     near : Hypothesis, optional
@@ -691,12 +353,54 @@ def probe(model: PoseModel, maps: TestMaps | Sequence[TestMaps | None], setup: S
         inplanes=inplanes, viewpoint_kappa=setup.viewpoint_kappa, use_weights=setup.use_weights,
         k1_cutoff=K1_CUTOFF, max_voters=MAX_VOTERS, max_features=opts.max_search_features,
         n_candidates=VOTE_CANDIDATES, n_threads=setup.n_threads, polish=polish)
-    if isinstance(given, TestMaps) and polish and near is None and len(az) >= 6:
-        return _polished_near_modes(model, given, az, el, scales, progress=progress, **kw)
-    if isinstance(given, TestMaps) or len(scales) < 4 or len(az) < 6:
+    strategy = search_strategy(per_scale=not isinstance(given, TestMaps), polish=polish,
+                               near=near is not None, n_viewpoints=len(az),
+                               n_scales=len(scales))
+    if strategy == "every probe":
         return probe_poses(model, given, azimuths=az, elevations=el, scales=scales,
                            progress=progress, **kw)
+    if strategy == "polish near the best":
+        assert isinstance(given, TestMaps)
+        return _polished_near_modes(model, given, az, el, scales, progress=progress, **kw)
+    assert not isinstance(given, TestMaps)
     return _ranking_probes(model, given, az, el, scales, progress=progress, **kw)
+
+
+#: The fewest viewpoints and scales for which a search saves probes (fewer: every probe).
+MIN_STRATEGY_VIEWPOINTS = 6
+MIN_STRATEGY_SCALES = 4
+
+
+def search_strategy(*, per_scale: bool, polish: bool, near: bool, n_viewpoints: int,
+                    n_scales: int) -> str:
+    """How :func:`probe` covers its grid, from what the search is and what it is for.
+
+    ======================  =============================================  ====================
+    strategy                when                                           probes
+    ======================  =============================================  ====================
+    "polish near the best"  one set of maps, polished, a full search of    every viewpoint, only
+                            :data:`MIN_STRATEGY_VIEWPOINTS` or more        those the fit of the
+                                                                           best modes reads
+                                                                           polished
+    "ranking"               per-scale maps, :data:`MIN_STRATEGY_SCALES`    every other scale
+                            scales or more, as many viewpoints             everywhere (coarse to
+                                                                           fine over a sphere),
+                                                                           the rest at the best
+                                                                           viewpoints
+    "every probe"           otherwise (a few viewpoints or scales, a       all
+                            search near a pose on one set of maps, an
+                            unpolished one on one set)
+    ======================  =============================================  ====================
+
+    Returns
+    -------
+    str
+        One of the strategies above.
+    """
+    few = n_viewpoints < MIN_STRATEGY_VIEWPOINTS
+    if not per_scale:
+        return "polish near the best" if polish and not near and not few else "every probe"
+    return "every probe" if few or n_scales < MIN_STRATEGY_SCALES else "ranking"
 
 
 def _polished_near_modes(model: PoseModel, maps: TestMaps, az: NDArray[np.float64],
@@ -781,7 +485,7 @@ def _coarse_to_fine(model: PoseModel, maps: list[TestMaps], az: NDArray[np.float
     probed first, then the others within that reach of the best
     :data:`RANKING_VIEWPOINTS` of them; the rest score 0, unprobed.
     """
-    if np.ptp(el) < 1e-9 or len(az) < 6:
+    if np.ptp(el) < 1e-9 or len(az) < MIN_STRATEGY_VIEWPOINTS:
         return probe_poses(model, maps, azimuths=az, elevations=el, scales=scales,
                            progress=progress, **kw)
     dirs = viewing_direction(az, el)

@@ -10,9 +10,9 @@ polished by evaluating the exact score ``p(w)`` (Eq. 3) from precomputed,
 smoothed test-feature maps: summing shifted maps gives the density the
 sampled votes approximate, without sampling noise.
 
-Two kernels do the work: :func:`accumulate_votes` and :func:`gather_score`.
-Each has a pure-numpy reference (``*_reference``) that the tests compare it
-with. :func:`search_translations` drives them over a grid of ``w2``.
+:func:`accumulate_votes` (with its pure-numpy reference) casts the votes; the
+exact score is the scoring layer's :func:`posevote.scoring.score.gather_score`.
+:func:`search_translations` drives them over a grid of ``w2``.
 """
 
 from __future__ import annotations
@@ -23,7 +23,13 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
-from posevote.inference.maps import TestMaps, vote_cell
+from posevote.scoring.maps import TestMaps, vote_cell
+from posevote.scoring.score import (
+    gather_score,
+    place_features,
+    shifted_score,
+    subsample_features,
+)
 
 # --- kernel 1: votes ----------------------------------------------------------
 
@@ -184,97 +190,12 @@ def accumulate_votes_reference(train_xy, train_theta, train_w, alpha, scale, tes
 
 # --- kernel 2: exact score --------------------------------------------------------
 
-@numba.njit(cache=True, nogil=True)
-def gather_score(density, frame, train_xy, train_theta, train_w, alpha, scale, tu, tv
-                 ):  # pragma: no cover - compiled
-    """Sum of ``wt_i * phi(T_w x_i)`` with ``T_w`` = (alpha, scale, (tu, tv)).
-
-    ``phi`` is read from the tabulated maps (``frame``: :attr:`TestMaps.frame`)
-    bilinearly in position and linearly in orientation; outside their
-    window it is 0.
-    """
-    n_bins = density.shape[0]
-    bin_width = np.pi / n_bins
-    off, inv = frame[4], frame[5]
-    # The pose straight to grid units: a pixel's position p is at (p - off) * inv.
-    ca, sa = scale * inv * np.cos(alpha), scale * inv * np.sin(alpha)
-    gu, gv = (tu - off) * inv, (tv - off) * inv
-    total = 0.0
-    for i in range(train_xy.shape[0]):
-        wi = train_w[i]
-        if wi <= 0.0:
-            continue
-        x = ca * train_xy[i, 0] - sa * train_xy[i, 1] + gu
-        y = sa * train_xy[i, 0] + ca * train_xy[i, 1] + gv
-        if x < frame[0] or y < frame[1] or x >= frame[2] or y >= frame[3]:
-            continue
-        th = train_theta[i] + alpha
-        th = th - np.pi * np.floor(th / np.pi)
-        f = th / bin_width - 0.5
-        fb = np.floor(f)
-        ft = f - fb
-        # fb lies in [-1, n_bins - 1]: wrapped by a comparison, not an integer division
-        # (a fifth of the search's exact scores).
-        b0 = int(fb)
-        if b0 < 0:
-            b0 += n_bins
-        b1 = b0 + 1 if b0 + 1 < n_bins else 0
-        total += wi * phi_at(density, x, y, b0, b1, ft)
-    return total
 
 
-@numba.njit(cache=True, nogil=True)
-def phi_at(density, x, y, b0, b1, ft):  # pragma: no cover - compiled
-    """phi at grid position (x, y) inside the window, between bins ``b0`` and ``b1``:
-    bilinear (a position before the first cell reads it)."""
-    if x < 0.0:
-        x = 0.0
-    if y < 0.0:
-        y = 0.0
-    c0 = int(x)
-    r0 = int(y)
-    fx = x - c0
-    fy = y - r0
-    v0 = ((1 - fx) * (1 - fy) * density[b0, r0, c0] + fx * (1 - fy) * density[b0, r0, c0 + 1]
-          + (1 - fx) * fy * density[b0, r0 + 1, c0] + fx * fy * density[b0, r0 + 1, c0 + 1])
-    v1 = ((1 - fx) * (1 - fy) * density[b1, r0, c0] + fx * (1 - fy) * density[b1, r0, c0 + 1]
-          + (1 - fx) * fy * density[b1, r0 + 1, c0] + fx * fy * density[b1, r0 + 1, c0 + 1])
-    return (1.0 - ft) * v0 + ft * v1
 
 
-def density_at(maps: TestMaps, xy: NDArray[np.float64], theta: NDArray[np.float64]
-               ) -> NDArray[np.float64]:
-    """phi at each point and orientation, interpolated as :func:`phi_at` reads it.
-
-    Bilinear in position on the maps' grid, linear in orientation; 0
-    outside their window.
-    """
-    from scipy.ndimage import map_coordinates
-
-    n_bins = maps.density.shape[0]
-    u_lo, v_lo, u_hi, v_hi = maps.window
-    k = maps.grid
-    f = np.mod(theta, np.pi) / (np.pi / n_bins) - 0.5
-    b0 = np.floor(f).astype(int) % n_bins
-    b1 = (b0 + 1) % n_bins
-    ft = f - np.floor(f)
-    x, y = xy[:, 0], xy[:, 1]
-    inside = (x >= u_lo) & (y >= v_lo) & (x < u_hi) & (y < v_hi)
-    gx = np.maximum((x - 0.5 * (k - 1)) / k, 0.0)
-    gy = np.maximum((y - 0.5 * (k - 1)) / k, 0.0)
-    d = maps.density.astype(np.float64)
-    v0 = map_coordinates(d, [b0, gy, gx], order=1, mode="nearest")
-    v1 = map_coordinates(d, [b1, gy, gx], order=1, mode="nearest")
-    return np.where(inside, (1 - ft) * v0 + ft * v1, 0.0)
 
 
-def gather_score_reference(maps, train_xy, train_theta, train_w, alpha, scale, tu, tv):
-    """Pure-numpy :func:`gather_score` (for tests)."""
-    ca, sa = np.cos(alpha), np.sin(alpha)
-    x = scale * (ca * train_xy[:, 0] - sa * train_xy[:, 1]) + tu
-    y = scale * (sa * train_xy[:, 0] + ca * train_xy[:, 1]) + tv
-    values = density_at(maps, np.stack([x, y], axis=1), train_theta + alpha)
-    return float(np.sum(np.where(train_w > 0, train_w * values, 0.0)))
 
 
 # --- driver ---------------------------------------------------------------------
@@ -373,51 +294,8 @@ def blur_taps(sigma_cells: float) -> NDArray[np.float64]:
     return taps / taps.sum()
 
 
-@numba.njit(cache=True, nogil=True)
-def place_features(frame, n_bins, xy, theta, alpha, scale, u0, v0, px, py, obins, ofrac
-                   ):  # pragma: no cover - compiled
-    """The features turned, scaled and moved to (u0, v0) as :func:`gather_score` places
-    them, in the grid's units (``px``, ``py``), and their orientation bins
-    (``obins``, ``ofrac``), in place.
-
-    The pose's shifts (:func:`shifted_score`) then skip the turn and the bins.
-    """
-    bin_width = np.pi / n_bins
-    off, inv = frame[4], frame[5]
-    ca, sa = scale * inv * np.cos(alpha), scale * inv * np.sin(alpha)
-    gu, gv = (u0 - off) * inv, (v0 - off) * inv
-    for i in range(xy.shape[0]):
-        px[i] = ca * xy[i, 0] - sa * xy[i, 1] + gu
-        py[i] = sa * xy[i, 0] + ca * xy[i, 1] + gv
-        th = theta[i] + alpha
-        th = th - np.pi * np.floor(th / np.pi)
-        f = th / bin_width - 0.5
-        fb = np.floor(f)
-        ofrac[i] = f - fb
-        b0 = int(fb)
-        if b0 < 0:
-            b0 += n_bins
-        obins[i, 0] = b0
-        obins[i, 1] = b0 + 1 if b0 + 1 < n_bins else 0
 
 
-@numba.njit(cache=True, nogil=True)
-def shifted_score(density, frame, weight, px, py, obins, ofrac, du, dv, step
-                  ):  # pragma: no cover - compiled
-    """:func:`gather_score` of the features placed by :func:`place_features`, shifted by
-    (du, dv) pixels; with ``step`` > 1, of every ``step``-th feature only (a
-    cheaper estimate, for comparing shifts)."""
-    gu = du * frame[5]
-    gv = dv * frame[5]
-    total = 0.0
-    for i in range(0, weight.shape[0], step):
-        wi = weight[i]
-        x = px[i] + gu
-        y = py[i] + gv
-        if wi <= 0.0 or x < frame[0] or y < frame[1] or x >= frame[2] or y >= frame[3]:
-            continue
-        total += wi * phi_at(density, x, y, obins[i, 0], obins[i, 1], ofrac[i])
-    return total
 
 
 _POLISH_RADIUS = 8
@@ -653,19 +531,6 @@ def polish_translations(maps: TestMaps, train_xy: NDArray[np.float64],
     return out_score, out_t
 
 
-def subsample_features(xy: NDArray[np.float64], theta: NDArray[np.float64],
-                       weight: NDArray[np.float64], max_features: int | None
-                       ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-    """At most about ``max_features`` of the features (an even stride), their weights
-    scaled to the same total; contiguous float64 arrays (the kernels' own)."""
-    if max_features is not None and len(theta) > max_features:
-        keep = slice(0, None, int(np.ceil(len(theta) / max_features)))
-        total = float(np.sum(weight))
-        xy, theta, weight = xy[keep], theta[keep], weight[keep]
-        subtotal = float(np.sum(weight))
-        weight = weight * (total / subtotal) if subtotal > 0 else weight
-    return (np.ascontiguousarray(xy, dtype=np.float64), np.ascontiguousarray(theta, dtype=np.float64),
-            np.ascontiguousarray(weight, dtype=np.float64))
 
 
 def strongest_voters(weight: NDArray[np.float64], max_voters: int | None) -> NDArray[np.int64]:

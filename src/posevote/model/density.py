@@ -75,7 +75,7 @@ class PoseModel:
         ``origins``); None: not given (``t_cam_obj`` names the box centre).
     view_template : ndarray of float16, shape (K, T, T), or None
         Each view's grey template, upright, NaN outside the object
-        (:mod:`posevote.model.templates`); None: not learnt.
+        (:mod:`posevote.templates.model`); None: not learnt.
     view_template_cell : ndarray, shape (K,), or None
         Reference pixels per template pixel of each view; present with
         ``view_template``.

@@ -19,10 +19,12 @@ for morphed models; ``view_origin`` when training gave the object's origin;
 ``view_template_cell``, the views' grey templates; ``view_outline`` when
 training gave masks;
 ``view_descriptor``, ``objectness`` and ``box_regressor`` for the
-appearance stages. Version 5 is the only version read: files of versions
-1-2 name parameters that no longer exist, version 3's appearance options
-hold a field that version 4 dropped, and version 4's search options name
-``coverage`` (now ``rerank``) and hold no templates; all must be retrained.
+appearance stages. Versions 5 and 6 are read: version 5 named the
+refinement steps' switches ``fitting`` and ``local_refinement`` and the
+template steps ``search.rerank = "template"``; its parameters are read as
+the same steps' switches (:func:`_version_5_params`). Files of versions 1-4
+name parameters that no longer exist or hold no templates, and must be
+retrained.
 """
 
 from __future__ import annotations
@@ -35,15 +37,17 @@ from typing import Any
 import numpy as np
 
 from posevote._io import atomic_open
+from posevote.appearance.model import AppearanceModel
 from posevote.camera import check_object_height
-from posevote.features.appearance import descriptor_length
-from posevote.model.appearance import AppearanceModel
+from posevote.features.hog import descriptor_length
 from posevote.model.density import PoseModel
 from posevote.model.outline import OUTLINE_ANGLES
 from posevote.model.training import TrainedModel
 
 FORMAT_NAME = "posevote-model"
-FORMAT_VERSION = 5
+FORMAT_VERSION = 6
+#: The oldest version read (its parameters translated).
+OLDEST_VERSION = 5
 
 #: A model file larger than this (bytes) is refused before it is read.
 MAX_MODEL_BYTES = 2 << 30
@@ -163,10 +167,10 @@ def load_model(path: str | Path) -> tuple[TrainedModel, dict[str, Any]]:
                 raise ValueError(
                     f"{path}: model format version {version} is newer than this posevote reads "
                     f"({FORMAT_VERSION}); upgrade posevote or retrain the model")
-            if version < FORMAT_VERSION:
+            if version < OLDEST_VERSION:
                 raise ValueError(
                     f"{path}: model format version {version} was written by an older posevote "
-                    f"(this one reads {FORMAT_VERSION}); retrain the model")
+                    f"(this one reads {OLDEST_VERSION}-{FORMAT_VERSION}); retrain the model")
             missing = [name for name in _ARRAYS if name not in data.files]
             if missing:
                 raise ValueError(f"{path}: corrupt model file (missing array(s) "
@@ -239,7 +243,37 @@ def load_model(path: str | Path) -> tuple[TrainedModel, dict[str, Any]]:
                            viewpoint_kappa=float(kappa), appearance=look,
                            pruning=pruning if isinstance(pruning, dict) else None,
                            object_height_m=height)
+    if header["version"] == 5:
+        params = _version_5_params(params, len(model.instance_names))
     return trained, dict(params)
+
+
+def _version_5_params(params: dict[str, Any], n_instances: int) -> dict[str, Any]:
+    """A version-5 file's parameters as the switches of the steps it ran.
+
+    Version 5 ran the rescale step when fitting without the local refinement or
+    the appearance stages, the local refinement's profile when fitting (else a
+    polish), the outline without the appearance stages, and the half-turn and
+    share-scale steps with the template re-ranking and the local refinement
+    where no instance was to be recognised.
+    """
+    out = dict(params)
+    fitting, local = out.pop("fitting", True), out.pop("local_refinement", False)
+    search = dict(out.get("search") or {})
+    template = search.get("rerank") == "template"
+    if template:
+        search["rerank"] = None
+    if "search" in out:
+        out["search"] = search
+    looks = out.get("appearance") is not None
+    recognising = out.get("recognition", {}) is not None and n_instances > 1
+    out["refine"] = {"fit": fitting, "rescale": bool(fitting and not local and not looks),
+                     "local": ("profile" if fitting else "polish") if local else None,
+                     "share_scale": bool(template and local and not recognising),
+                     "outline": not looks}
+    out["templates"] = {"rerank": True, "weigh": True,
+                        "half_turn": bool(local and not recognising)} if template else None
+    return out
 
 
 def _check_sizes(path: Path, data: Any) -> None:

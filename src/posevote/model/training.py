@@ -2,7 +2,7 @@
 
 :func:`train_model` reads each training image once: its edges inside the
 object's box (and mask), its grey template when the template re-ranking is
-wanted (:mod:`posevote.model.templates`), its appearance descriptors when
+wanted (:mod:`posevote.templates.model`), its appearance descriptors when
 the appearance stages are, and its crop for the morphing between
 neighbouring views;
 then it builds psi (:func:`posevote.model.density.build_model`), weighs the
@@ -21,6 +21,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from posevote._parallel import thread_map
+from posevote.appearance.model import AppearanceCollector, AppearanceModel
 from posevote.camera import check_object_height
 from posevote.data.images import load_image, read_mask
 from posevote.features.edges import (
@@ -31,14 +32,13 @@ from posevote.features.edges import (
     normalize_features,
 )
 from posevote.geometry import box_centre
-from posevote.model.appearance import AppearanceCollector, AppearanceModel
 from posevote.model.density import PoseModel, build_model, viewpoint_kappa
 from posevote.model.kernels import ORIENTATION_KAPPA, KernelOptions
 from posevote.model.morph import ViewCrops, view_neighbours, view_shifts
 from posevote.model.outline import OUTLINE_ANGLES, box_outline, mask_outline
 from posevote.model.pruning import PruningPreset, prune_model
-from posevote.model.templates import TEMPLATE_SIDE, view_template
 from posevote.model.weights import feature_weights
+from posevote.templates.model import TEMPLATE_SIDE, view_template
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)

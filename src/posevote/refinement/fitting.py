@@ -35,7 +35,7 @@ from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
 from posevote.geometry import angle_difference, rotate_points, viewing_direction, wrap_angle
-from posevote.inference.search import ProbeSet, probe_spacing
+from posevote.inference.probes import ProbeSet
 from posevote.results import Hypothesis
 
 #: Relative tolerance of the fit. scipy's default (1e-8) spends half of its
@@ -98,7 +98,7 @@ def neighbour_viewpoints(probes: ProbeSet, viewpoint: int, *, radius_steps: floa
                          ) -> NDArray[np.intp]:
     """Probed viewpoints within ``radius_steps`` probe spacings of ``viewpoint``."""
     d = probes.directions
-    return np.flatnonzero(d @ d[viewpoint] >= np.cos(radius_steps * probe_spacing(probes)))
+    return np.flatnonzero(d @ d[viewpoint] >= np.cos(radius_steps * probes.spacing))
 
 
 #: On a grid over the sphere, the profile's peak is read from the viewpoints within
@@ -137,7 +137,7 @@ def peak_viewpoint(probes: ProbeSet, viewpoint: int) -> tuple[float, float] | No
         determine a peak (too few, at one elevation only, or the quadratic not
         concave).
     """
-    spacing = probe_spacing(probes)
+    spacing = probes.spacing
     near = neighbour_viewpoints(probes, viewpoint, radius_steps=PEAK_RADIUS_STEPS)
     az0, el0 = float(probes.azimuth[viewpoint]), float(probes.elevation[viewpoint])
     # Offsets in probe spacings, the azimuth's along the circle of its elevation.
@@ -419,7 +419,7 @@ def refine_mode(probes: ProbeSet, viewpoint: int, *, radius_steps: float = 2.5, 
 def _fit(probes: ProbeSet, v0: int, a0: int, s0: int, radius_steps: float, span: int,
          tolerance: float, view_shape: float) -> tuple[float, float, float, float] | None:
     directions = probes.directions
-    step_v = probe_spacing(probes)
+    step_v = probes.spacing
     views = neighbour_viewpoints(probes, v0, radius_steps=radius_steps)
     a_idx = np.arange(max(0, a0 - span), min(len(probes.inplane), a0 + span + 1))
     s_idx = np.arange(max(0, s0 - span), min(len(probes.scale), s0 + span + 1))

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import replace
-from typing import Any
 
 import numba
 import numpy as np
@@ -20,25 +19,8 @@ from numpy.typing import NDArray
 
 from posevote.features.edges import EdgeFeatures
 from posevote.geometry import viewing_direction
-from posevote.inference.maps import TestMaps, scaled_features
-from posevote.inference.search import (
-    ProbeSet,
-    SearchSetup,
-    ViewpointFeatures,
-    image_maps,
-    median_spacing,
-    viewpoint_features,
-)
-from posevote.inference.templates import CORRELATION_FLOOR
-from posevote.inference.voting import (
-    gather_score,
-    gather_score_reference,
-    place_features,
-    shifted_score,
-    subsample_features,
-)
+from posevote.inference.probes import ProbeSet
 from posevote.model.density import PoseModel
-from posevote.model.kernels import K1_CUTOFF
 from posevote.refinement.fitting import (
     FIT_RADIUS_STEPS,
     VIEW_SHAPE,
@@ -48,6 +30,24 @@ from posevote.refinement.fitting import (
     refine_mode,
 )
 from posevote.results import Hypothesis
+from posevote.scoring.maps import TestMaps, scaled_features
+from posevote.scoring.score import (
+    ScoreSetup,
+    features_at,
+    gather_score,
+    gather_score_reference,
+    median_spacing,
+    narrow_maps,
+    place_features,
+    pose_score,
+    score_options,
+    shifted_score,
+    viewpoint_features,
+)
+
+#: Weighs each pose's score: a factor per pose, positive (the templates' correlation, floored;
+#: :func:`posevote.templates.match.correlation_weights`).
+PoseWeights = Callable[[list[Hypothesis]], NDArray[np.float64]]
 
 #: The polish moves the translation by at most this many pixels (each way).
 POLISH_SHIFT = 8.0
@@ -71,7 +71,7 @@ def polish_pose(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps, *,
     maps : TestMaps
         The test image, tabulated with the narrow kernel.
     viewpoint_kappa, use_weights, k1_cutoff
-        As in :func:`posevote.inference.search.viewpoint_features`.
+        As in :func:`posevote.scoring.score.viewpoint_features`.
     max_shift : float, optional
         The translation moves at most this many pixels; the angle and scale
         at most by the equivalent at the model's typical radius.
@@ -80,7 +80,7 @@ def polish_pose(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps, *,
         starts outside them, no farther out than it starts).
     max_features : int or None, optional
         Polish on at most about this many of the view's features (an even
-        stride, :func:`posevote.inference.voting.subsample_features`); the
+        stride, :func:`posevote.scoring.score.subsample_features`); the
         returned score is then theirs.
     turn : bool, optional
         False holds the in-plane angle (scale and translation only).
@@ -91,7 +91,7 @@ def polish_pose(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps, *,
         The polished pose (or the input pose if nothing better was found),
         with its exact narrow-kernel score.
     """
-    feats = _pose_features(hypothesis, model, viewpoint_kappa=viewpoint_kappa,
+    feats = features_at(hypothesis, model, viewpoint_kappa=viewpoint_kappa,
                            use_weights=use_weights, k1_cutoff=k1_cutoff,
                            max_features=max_features)
     if feats.weight.sum() <= 0:
@@ -115,34 +115,8 @@ def polish_pose(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps, *,
                    score=float(best))
 
 
-def _pose_features(hypothesis: Hypothesis, model: PoseModel, *, viewpoint_kappa: float,
-                   use_weights: bool, k1_cutoff: float, max_features: int | None
-                   ) -> ViewpointFeatures:
-    """The view's features at the hypothesis's viewpoint, at most about ``max_features``."""
-    feats = viewpoint_features(model, hypothesis.azimuth, hypothesis.elevation,
-                               viewpoint_kappa=viewpoint_kappa, use_weights=use_weights,
-                               k1_cutoff=k1_cutoff)
-    if max_features is not None and feats.weight.sum() > 0:
-        xy, theta, weight = subsample_features(feats.xy, feats.theta, feats.weight, max_features)
-        feats = replace(feats, xy=xy, theta=theta, weight=weight)
-    return feats
 
 
-def pose_score(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps, *,
-               viewpoint_kappa: float, use_weights: bool = True, k1_cutoff: float = 0.1,
-               max_features: int | None = None) -> float:
-    """The exact p(w) of ``model`` at the hypothesis's pose as it stands (no polish).
-
-    Parameters as in :func:`polish_pose`; the score :func:`polish_pose`
-    starts from.
-    """
-    feats = _pose_features(hypothesis, model, viewpoint_kappa=viewpoint_kappa,
-                           use_weights=use_weights, k1_cutoff=k1_cutoff,
-                           max_features=max_features)
-    if feats.weight.sum() <= 0:
-        return 0.0
-    return float(gather_score(maps.density, maps.frame, feats.xy, feats.theta, feats.weight,
-                              hypothesis.inplane, hypothesis.scale, *hypothesis.position))
 
 
 #: The compass search starts with steps of this many units (about a pixel at
@@ -274,9 +248,8 @@ def in_frame(pose: Hypothesis, factor: float) -> Hypothesis:
 
 
 def rescale_anchor(probes: ProbeSet, viewpoint: int, model: PoseModel,
-                   features: EdgeFeatures, shape: tuple[int, int], setup: SearchSetup, *,
-                   correlate: Callable[[list[Hypothesis]], NDArray[np.float64]] | None = None
-                   ) -> tuple[Hypothesis, int] | None:
+                   features: EdgeFeatures, shape: tuple[int, int], setup: ScoreSetup, *,
+                   weigh: PoseWeights | None = None) -> tuple[Hypothesis, int] | None:
     """Choose a mode's scale again with the narrow kernel in object units (beyond the paper).
 
     At each scale of the grid, the viewpoint's best probe is polished
@@ -302,12 +275,11 @@ def rescale_anchor(probes: ProbeSet, viewpoint: int, model: PoseModel,
         The test features, image pixels.
     shape : (int, int)
         The image's shape.
-    setup : SearchSetup
+    setup : ScoreSetup
         The search's setup (narrow kernel, pose kernel, weights).
-    correlate : callable, optional
-        Each polished pose's correlation with the object's grey levels
-        (:func:`posevote.inference.templates.pose_correlations`); with it a
-        scale's chance-corrected score is multiplied by it (floored), as the
+    weigh : callable, optional
+        Each polished pose's weight by its grey levels (:data:`PoseWeights`);
+        with it a scale's chance-corrected score is multiplied by it, as the
         search's were, so that another scale's best probe on the clutter
         does not win on edges alone.
 
@@ -317,7 +289,7 @@ def rescale_anchor(probes: ProbeSet, viewpoint: int, model: PoseModel,
         The polished pose in image coordinates and the index of its scale;
         None if no scale has a probe with a positive score.
     """
-    kw = _score_options(setup)
+    kw = score_options(setup)
     half = 0.5 * float(np.median(np.diff(np.log(probes.scale)))) if len(probes.scale) > 1 else 0.05
     feats = viewpoint_features(model, float(probes.azimuth[viewpoint]),
                                float(probes.elevation[viewpoint]), **kw)
@@ -340,8 +312,8 @@ def rescale_anchor(probes: ProbeSet, viewpoint: int, model: PoseModel,
     if not found:
         return None
     value = np.array([f[0] for f in found])
-    if correlate is not None:
-        factor = _weights(correlate, [f[1] for f in found])
+    if weigh is not None:
+        factor = weigh([f[1] for f in found])
         value = np.where(value > 0, value * factor, value)
     best = found[int(np.argmax(value))]
     return best[1], best[2]
@@ -354,7 +326,7 @@ def above_chance(score: float, maps: TestMaps) -> float:
 
 
 def unit_score(hypothesis: Hypothesis, model: PoseModel, features: EdgeFeatures,
-               shape: tuple[int, int], setup: SearchSetup) -> float:
+               shape: tuple[int, int], setup: ScoreSetup) -> float:
     """A pose's narrow score above chance, the kernel in object units at its own scale.
 
     As :func:`rescale_anchor` scores each scale, for a pose as it stands (no
@@ -370,14 +342,14 @@ def unit_score(hypothesis: Hypothesis, model: PoseModel, features: EdgeFeatures,
         The test features, image pixels.
     shape : (int, int)
         The image's shape.
-    setup : SearchSetup
+    setup : ScoreSetup
 
     Returns
     -------
     float
         At most 1; below 0 where the pose explains less than chance does.
     """
-    kw = _score_options(setup)
+    kw = score_options(setup)
     factor = hypothesis.scale
     feats = viewpoint_features(model, hypothesis.azimuth, hypothesis.elevation, **kw)
     # The maps are tabulated only where the pose's features land (and the read's pixel).
@@ -387,7 +359,7 @@ def unit_score(hypothesis: Hypothesis, model: PoseModel, features: EdgeFeatures,
     return above_chance(pose_score(pose, model, maps, **kw), maps)
 
 
-def maps_around(features: EdgeFeatures, shape: tuple[int, int], setup: SearchSetup,
+def maps_around(features: EdgeFeatures, shape: tuple[int, int], setup: ScoreSetup,
                 factor: float, position: tuple[float, float], reach: float) -> TestMaps:
     """Narrow maps of the test image divided by ``factor`` (object units at that scale),
     tabulated within ``reach`` of ``position`` (in that frame), with the whole image's
@@ -397,19 +369,9 @@ def maps_around(features: EdgeFeatures, shape: tuple[int, int], setup: SearchSet
     u, v = np.clip(position, 0.0, (w - 1, h - 1))
     region = (int(np.floor(u - reach)), int(np.floor(v - reach)),
               int(np.ceil(u + reach)), int(np.ceil(v + reach)))
-    return image_maps(scaled, (h, w), setup, scale=factor, region=region)
+    return narrow_maps(scaled, (h, w), setup, scale=factor, region=region)
 
 
-def _weights(correlate: Callable[[list[Hypothesis]], NDArray[np.float64]],
-             poses: list[Hypothesis]) -> NDArray[np.float64]:
-    """The factor that weighs each pose's score by its grey levels: its correlation, floored."""
-    return np.maximum(correlate(poses), CORRELATION_FLOOR)
-
-
-def _score_options(setup: SearchSetup) -> dict[str, Any]:
-    """The pose kernel and weights the polishes score with."""
-    return {"viewpoint_kappa": setup.viewpoint_kappa, "use_weights": setup.use_weights,
-            "k1_cutoff": K1_CUTOFF}
 
 
 def start_near(probes: ProbeSet, viewpoint: int, anchor: Hypothesis) -> Hypothesis:
@@ -459,8 +421,7 @@ def profile_refine(probes: ProbeSet, viewpoint: int, model: PoseModel, maps: Tes
                    radius_steps: float = 2.5, scale_margin: float | None = None,
                    view_shape: float = VIEW_SHAPE, anchor: Hypothesis | None = None,
                    frame_scale: float = 1.0,
-                   correlate: Callable[[list[Hypothesis]], NDArray[np.float64]] | None = None
-                   ) -> Hypothesis:
+                   weigh: PoseWeights | None = None) -> Hypothesis:
     """Fit the viewpoint on the profile likelihood, then polish (beyond the paper).
 
     For every probed viewpoint near the mode, the exact p(w) is maximised over
@@ -500,14 +461,12 @@ def profile_refine(probes: ProbeSet, viewpoint: int, model: PoseModel, maps: Tes
     frame_scale : float, optional
         ``maps`` tabulate the test image divided by this factor (the kernel
         in object units at that scale); poses are converted in and out.
-    correlate : callable, optional
-        Each polished pose's correlation with the object's grey levels
-        (:func:`posevote.inference.templates.pose_correlations`); with it
-        every viewpoint's maximised score is multiplied by it (floored at
-        :data:`~posevote.inference.templates.CORRELATION_FLOOR`) before the
-        fit, as the search's probes and :func:`rescale_anchor`'s scales are:
-        in clutter the edges alone let a neighbouring view's polish score on
-        the background. The pose returned is scored the same way.
+    weigh : callable, optional
+        Each polished pose's weight by its grey levels (:data:`PoseWeights`);
+        with it every viewpoint's maximised score is multiplied by it before
+        the fit, as the search's probes and :func:`rescale_anchor`'s scales
+        are: in clutter the edges alone let a neighbouring view's polish
+        score on the background. The pose returned is scored the same way.
 
     Returns
     -------
@@ -529,8 +488,8 @@ def profile_refine(probes: ProbeSet, viewpoint: int, model: PoseModel, maps: Tes
                                     viewpoint_kappa=viewpoint_kappa, use_weights=use_weights,
                                     k1_cutoff=k1_cutoff, scale_bounds=bounds))
     score = np.array([h.score for h in polished])
-    if correlate is not None:
-        score = score * _weights(correlate, [in_frame(h, 1.0 / frame_scale) for h in polished])
+    if weigh is not None:
+        score = score * weigh([in_frame(h, 1.0 / frame_scale) for h in polished])
     profile = viewpoint_profile(probes.azimuth[views], probes.elevation[views], score,
                                 probes.box[views])
     best = int(np.argmax(score))
@@ -548,23 +507,21 @@ def profile_refine(probes: ProbeSet, viewpoint: int, model: PoseModel, maps: Tes
     final = in_frame(polish_pose(moved, model, maps, viewpoint_kappa=viewpoint_kappa,
                                  use_weights=use_weights, k1_cutoff=k1_cutoff,
                                  scale_bounds=bounds), 1.0 / frame_scale)
-    if correlate is not None:
+    if weigh is not None:
         # Scored as the profile's poses were, so that modes and images compare.
-        final = replace(final, score=final.score * float(_weights(correlate, [final])[0]))
+        final = replace(final, score=final.score * float(weigh([final])[0]))
     return replace(final, refined=True)
 
 
 def refine_viewpoint(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps,
-                     setup: SearchSetup,
-                     correlate: Callable[[list[Hypothesis]], NDArray[np.float64]]
-                     ) -> Hypothesis:
+                     setup: ScoreSetup, weigh: PoseWeights) -> Hypothesis:
     """A pose's viewpoint read from the training views around it, as :func:`profile_refine`
     reads the found pose's over the sphere (beyond the paper).
 
     The pose is polished (:func:`polish_pose`) at every training viewpoint
     within :data:`~posevote.refinement.fitting.FIT_RADIUS_STEPS` spacings of
-    its own, each polish scored by its narrow score times its template
-    correlation; the viewpoint is read at the peak of that profile
+    its own, each polish scored by its narrow score times its weight; the
+    viewpoint is read at the peak of that profile
     (:func:`~posevote.refinement.fitting.peak_viewpoint`) and the pose polished
     there. The half-turn check reads both its sides so, that the two poses
     it compares are refined alike. Models of one elevation return the pose
@@ -578,9 +535,9 @@ def refine_viewpoint(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps,
     model : PoseModel
     maps : TestMaps
         The image's narrow maps in pixels.
-    setup : SearchSetup
-    correlate : callable
-        Each pose's correlation with the object's grey levels.
+    setup : ScoreSetup
+    weigh : callable
+        Each pose's weight by its grey levels (:data:`PoseWeights`).
 
     Returns
     -------
@@ -591,7 +548,7 @@ def refine_viewpoint(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps,
     """
     if not np.ptp(model.view_elevation) > 0:
         return hypothesis
-    kw = _score_options(setup)
+    kw = score_options(setup)
     directions = viewing_direction(model.view_azimuth, model.view_elevation)
     near = np.flatnonzero(directions @ viewing_direction(hypothesis.azimuth, hypothesis.elevation)
                           >= np.cos(FIT_RADIUS_STEPS * median_spacing(directions)))
@@ -600,7 +557,7 @@ def refine_viewpoint(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps,
     polished = [polish_pose(replace(hypothesis, azimuth=float(model.view_azimuth[i]),
                                     elevation=float(model.view_elevation[i])), model, maps, **kw)
                 for i in near]
-    score = np.array([h.score for h in polished]) * _weights(correlate, polished)
+    score = np.array([h.score for h in polished]) * weigh(polished)
     profile = viewpoint_profile(model.view_azimuth[near], model.view_elevation[near], score,
                                 model.view_box[near])
     best = int(np.argmax(score))
@@ -619,20 +576,19 @@ REFINE_SCALE_STEPS = 1.0
 
 
 def local_refine(probes: ProbeSet, viewpoint: int, hypothesis: Hypothesis, model: PoseModel,
-                 setup: SearchSetup, *, fitting: bool, features: EdgeFeatures | None = None,
-                 shape: tuple[int, int] | None = None, maps: TestMaps | None = None,
-                 object_units: bool = False,
-                 correlate: Callable[[list[Hypothesis]], NDArray[np.float64]] | None = None
-                 ) -> Hypothesis:
+                 setup: ScoreSetup, *, profile: bool, narrow: Callable[[], TestMaps],
+                 scale_step: float, object_units: bool = False,
+                 features: EdgeFeatures | None = None, shape: tuple[int, int] | None = None,
+                 weigh: PoseWeights | None = None) -> Hypothesis:
     """The local refinement of one mode (beyond the paper).
 
-    With ``fitting``, the profile likelihood around the mode's best
+    With ``profile``, the profile likelihood around the mode's best
     viewpoint is fitted (:func:`profile_refine`); with ``object_units`` the
     mode's scale is first chosen again among the search's scales on narrow
     maps in object units (:func:`rescale_anchor`), and the profile is fitted
     on that scale's: the search's wide kernel blurs the object's inner
     detail, so that under occlusion a model shrunk onto the visible part
-    scores as well as the right one. Without ``fitting`` the mode's pose is
+    scores as well as the right one. Without ``profile`` the mode's pose is
     only polished (:func:`polish_pose`).
 
     Parameters
@@ -644,21 +600,24 @@ def local_refine(probes: ProbeSet, viewpoint: int, hypothesis: Hypothesis, model
     hypothesis : Hypothesis
         The mode's pose (fitted or not).
     model : PoseModel
-    setup : SearchSetup
-        The search's setup (kernel, weights, scale grid).
-    fitting : bool
+    setup : ScoreSetup
+    profile : bool
         Fit the viewpoint (else polish only).
+    narrow : callable
+        Returns the test image's narrow maps in pixels
+        (:func:`posevote.scoring.score.narrow_maps`), called only when they
+        are read.
+    scale_step : float
+        The search grid's log-scale step: the scale stays within
+        :data:`REFINE_SCALE_STEPS` of them (at least 5% a step).
+    object_units : bool, optional
+        With ``profile``, choose the scale again in object units (the search's
+        kernel was in object units).
     features : EdgeFeatures, optional
-        The test features, image pixels; needed unless ``maps`` is given and
-        ``object_units`` is not.
+        The test features, image pixels (with ``object_units``).
     shape : (int, int), optional
         The image's shape, with ``features``.
-    maps : TestMaps, optional
-        The test image with the narrow kernel, pixels, if already made
-        (else made from ``features`` when needed).
-    object_units : bool, optional
-        With ``fitting``, choose the scale again in object units.
-    correlate : callable, optional
+    weigh : callable, optional
         Weighs by the grey levels that choice (:func:`rescale_anchor`) and
         the viewpoints' profile (:func:`profile_refine`).
 
@@ -669,37 +628,29 @@ def local_refine(probes: ProbeSet, viewpoint: int, hypothesis: Hypothesis, model
     Raises
     ------
     ValueError
-        If the maps it needs can be neither taken nor made.
+        With ``object_units`` but no features and shape.
     """
-    kw = _score_options(setup)
-
-    def pixel_maps() -> TestMaps:
-        if maps is not None:
-            return maps
-        if features is None or shape is None:
-            raise ValueError("local_refine needs the narrow maps or the features and shape")
-        return image_maps(features, shape, setup)
-
-    if not fitting:
-        return polish_pose(hypothesis, model, pixel_maps(), **kw)
-    margin = REFINE_SCALE_STEPS * max(setup.options.scale_step(), 0.05)
+    kw = score_options(setup)
+    if not profile:
+        return polish_pose(hypothesis, model, narrow(), **kw)
+    margin = REFINE_SCALE_STEPS * max(scale_step, 0.05)
     if object_units:
         if features is None or shape is None:
             raise ValueError("local_refine in object units needs the features and shape")
         if chosen := rescale_anchor(probes, viewpoint, model, features, shape, setup,
-                                    correlate=correlate):
+                                    weigh=weigh):
             anchor, s = chosen
             factor = float(probes.scale[s])
-            scaled = image_maps(*scaled_features(features, shape, factor), setup, scale=factor)
+            scaled = narrow_maps(*scaled_features(features, shape, factor), setup, scale=factor)
             return profile_refine(probes, viewpoint, model, scaled, scale_margin=margin,
                                   radius_steps=FIT_RADIUS_STEPS, anchor=anchor,
-                                  frame_scale=factor, correlate=correlate, **kw)
-    return profile_refine(probes, viewpoint, model, pixel_maps(), scale_margin=margin,
-                          radius_steps=FIT_RADIUS_STEPS, correlate=correlate, **kw)
+                                  frame_scale=factor, weigh=weigh, **kw)
+    return profile_refine(probes, viewpoint, model, narrow(), scale_margin=margin,
+                          radius_steps=FIT_RADIUS_STEPS, weigh=weigh, **kw)
 
 
 def rescale_mode(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps,
-                 setup: SearchSetup) -> Hypothesis:
+                 setup: ScoreSetup) -> Hypothesis:
     """The fitted mode's scale and position polished on the narrow maps, its angles and
     score kept.
 
@@ -717,7 +668,7 @@ def rescale_mode(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps,
         kernel onto one instance's inner edges).
     maps : TestMaps
         The test image with the narrow kernel, pixels.
-    setup : SearchSetup
+    setup : ScoreSetup
         The search's setup (pose kernel, weights).
 
     Returns
@@ -725,6 +676,6 @@ def rescale_mode(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps,
     Hypothesis
         ``hypothesis`` with the polished scale, position and box.
     """
-    polished = polish_pose(hypothesis, model, maps, turn=False, **_score_options(setup))
+    polished = polish_pose(hypothesis, model, maps, turn=False, **score_options(setup))
     return replace(hypothesis, scale=polished.scale, position=polished.position,
                    box=polished.box)

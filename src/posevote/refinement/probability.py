@@ -26,7 +26,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from posevote.geometry import viewing_direction
-from posevote.inference.search import ProbeSet
+from posevote.inference.probes import ProbeSet
 from posevote.results import Hypothesis
 
 #: A mode is right when the true viewpoint is within this angle of it.

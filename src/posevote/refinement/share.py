@@ -2,7 +2,7 @@
 
 The narrow score is the share of the model that the image explains. Alone
 it favours a pose whose features can lie on other edges of the object: a
-plainer side placed over a detailed one (:mod:`posevote.refinement.halfturn`),
+plainer side placed over a detailed one (:mod:`posevote.templates.halfturn`),
 or the right view drawn in a little, its outline onto the edges just inside
 the object's (the rendered sphere's views on black: about 1% short at the
 true viewpoint; in clutter, where the found viewpoint is a few degrees off,
@@ -22,16 +22,20 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from posevote.geometry import rotate_points
-from posevote.inference.coverage import MIN_BOX_EDGES
-from posevote.inference.maps import TestMaps
-from posevote.inference.recognition import explained_sums
-from posevote.inference.search import SearchSetup, ViewpointFeatures, viewpoint_features
-from posevote.inference.voting import gather_score
 from posevote.model.density import PoseModel
 from posevote.model.kernels import K1_CUTOFF, ORIENTATION_KAPPA
 from posevote.model.outline import box_outline, inside_outline, outline_at
 from posevote.refinement.local import polish_pose
 from posevote.results import Hypothesis
+from posevote.scoring.maps import TestMaps
+from posevote.scoring.score import (
+    MIN_BOX_EDGES,
+    ScoreSetup,
+    ViewpointFeatures,
+    explained_sums,
+    gather_score,
+    viewpoint_features,
+)
 
 #: :func:`share_scale` tries the scales within this factor of the pose's,
 #: in :data:`SHARE_SCALE_STEPS` even steps of its logarithm, and counts the
@@ -46,7 +50,7 @@ _REACH_SIGMAS = 4.0
 _TYPICAL_POINTS = 256
 
 
-def pose_features(hypothesis: Hypothesis, model: PoseModel, setup: SearchSetup
+def pose_features(hypothesis: Hypothesis, model: PoseModel, setup: ScoreSetup
                   ) -> ViewpointFeatures:
     """The training features of the pose's viewpoint, as the search weighs them."""
     return viewpoint_features(model, hypothesis.azimuth, hypothesis.elevation,
@@ -55,7 +59,7 @@ def pose_features(hypothesis: Hypothesis, model: PoseModel, setup: SearchSetup
 
 
 def inside_pose(hypothesis: Hypothesis, model: PoseModel, points: NDArray[np.float64],
-                setup: SearchSetup, features: ViewpointFeatures) -> NDArray[np.bool_]:
+                setup: ScoreSetup, features: ViewpointFeatures) -> NDArray[np.bool_]:
     """Which points lie inside the pose's outline (its views' box where the model has none)."""
     outline = outline_at(model, hypothesis.azimuth, hypothesis.elevation,
                          kappa=setup.viewpoint_kappa, k1_cutoff=K1_CUTOFF)
@@ -66,7 +70,7 @@ def inside_pose(hypothesis: Hypothesis, model: PoseModel, points: NDArray[np.flo
 
 
 def edge_shares(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps,
-                selected: NDArray[np.bool_], setup: SearchSetup, scales: ArrayLike, *,
+                selected: NDArray[np.bool_], setup: ScoreSetup, scales: ArrayLike, *,
                 features: ViewpointFeatures | None = None) -> NDArray[np.float64]:
     """The share of the selected test edges that the pose's features explain, at each scale.
 
@@ -74,7 +78,7 @@ def edge_shares(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps,
     model's density at each test edge over its typical density on its own
     features, capped at 1, averaged), but summed exactly over the pairs of
     edges within :data:`_REACH_SIGMAS` kernel widths
-    (:func:`posevote.inference.recognition.explained_sums`) rather than read
+    (:func:`posevote.scoring.score.explained_sums`) rather than read
     from a grid: the decisions that use it turn on a few percent.
 
     Parameters
@@ -86,7 +90,7 @@ def edge_shares(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps,
         The test edges (``xy``, ``theta``) and the narrow kernel's width.
     selected : ndarray of bool, shape (N,)
         The test edges counted.
-    setup : SearchSetup
+    setup : ScoreSetup
     scales : array_like of float, shape (K,)
         Positive scales, about the pose's position.
     features : ViewpointFeatures, optional
@@ -96,7 +100,7 @@ def edge_shares(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps,
     -------
     ndarray, shape (K,)
         In [0, 1]; 0 with fewer than
-        :data:`~posevote.inference.coverage.MIN_BOX_EDGES` edges selected.
+        :data:`~posevote.scoring.score.MIN_BOX_EDGES` edges selected.
     """
     scales = np.asarray(scales, dtype=np.float64).reshape(-1)
     shares = np.zeros(len(scales))
@@ -125,7 +129,7 @@ def edge_shares(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps,
 
 
 def edge_share(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps,
-               selected: NDArray[np.bool_], setup: SearchSetup, *,
+               selected: NDArray[np.bool_], setup: ScoreSetup, *,
                features: ViewpointFeatures | None = None) -> float:
     """The share of the selected test edges that the pose's features explain, at its scale.
 
@@ -140,7 +144,7 @@ def edge_share(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps,
 
 
 def share_scale(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps,
-                setup: SearchSetup) -> Hypothesis:
+                setup: ScoreSetup) -> Hypothesis:
     """The pose at the scale where its narrow score times its edge share peaks.
 
     The scales within :data:`SHARE_SCALE_SPAN` of the pose's are scored
@@ -157,8 +161,8 @@ def share_scale(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps,
     model : PoseModel
     maps : TestMaps
         Narrow maps of the whole test image, in its pixels, as
-        :func:`posevote.inference.search.image_maps` makes them.
-    setup : SearchSetup
+        :func:`posevote.scoring.score.narrow_maps` makes them.
+    setup : ScoreSetup
 
     Returns
     -------

@@ -4,16 +4,17 @@ from __future__ import annotations
 
 import numpy as np
 
-from posevote.features.appearance import box_descriptor, descriptor_length
-from posevote.inference.search import ProbeSet
-from posevote.inference.verification import (
+from posevote.appearance.descriptors import box_descriptor
+from posevote.appearance.model import box_offsets
+from posevote.appearance.verify import (
     box_grid,
     jittered_nearest_view,
     medoid_view,
     nearest_view,
     verify_candidates,
 )
-from posevote.model.appearance import box_offsets
+from posevote.features.hog import descriptor_length
+from posevote.inference.probes import ProbeSet
 
 
 def _probes(centres, scores, size=96.0):
@@ -98,10 +99,10 @@ def test_no_candidate_inside_the_image_gives_none(draw):
 
 def test_verify_searches_again_inside_the_winners_box(draw, tmp_path):
     from posevote import PoseEstimator
+    from posevote.appearance import AppearanceOptions
+    from posevote.appearance.verify import verify
     from posevote.features.edges import extract_edges
-    from posevote.inference.search import search_maps
-    from posevote.inference.verification import verify
-    from posevote.model.appearance import AppearanceOptions
+    from posevote.inference.setup import search_maps
 
     az = np.radians(np.arange(0, 360, 20.0))
     est = PoseEstimator(appearance=AppearanceOptions(candidates=10))

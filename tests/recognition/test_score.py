@@ -9,16 +9,14 @@ import pytest
 
 from posevote.features.edges import EdgeFeatures
 from posevote.geometry import rotate_points
-from posevote.inference.recognition import (
+from posevote.model.kernels import orientation_kernel, position_kernel
+from posevote.recognition.score import (
     explained_fraction,
-    explained_sums,
-    explained_sums_reference,
     median_spacing,
     median_spacing_reference,
     recognition_margin,
 )
-from posevote.inference.search import viewpoint_features
-from posevote.model.kernels import orientation_kernel, position_kernel
+from posevote.scoring.score import explained_sums, explained_sums_reference, viewpoint_features
 
 
 def _reference(test, model, hyp, *, sigma, kappa, kappa_v):

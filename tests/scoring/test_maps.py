@@ -5,7 +5,9 @@ import numpy as np
 import pytest
 
 from posevote.features import EdgeFeatures
-from posevote.inference.maps import (
+from posevote.inference.voting import accumulate_votes, blur_taps
+from posevote.model.kernels import orientation_kernel
+from posevote.scoring.maps import (
     _refine,
     _saturate,
     _subtract_plane,
@@ -18,8 +20,7 @@ from posevote.inference.maps import (
     saturate_reference,
     smooth,
 )
-from posevote.inference.voting import accumulate_votes, blur_taps, density_at
-from posevote.model.kernels import orientation_kernel
+from posevote.scoring.score import density_at
 
 
 def test_chance_width_subtracts_the_local_chance_level():

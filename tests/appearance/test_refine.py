@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from posevote import PoseEstimator
+from posevote.appearance import AppearanceOptions
+from posevote.appearance.refine import appearance_refine
 from posevote.geometry import box_iou
-from posevote.model.appearance import AppearanceOptions
-from posevote.refinement.appearance import appearance_refine
 
 
 @pytest.fixture(scope="module")

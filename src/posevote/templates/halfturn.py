@@ -22,41 +22,35 @@ one's own scale (:func:`~posevote.refinement.local.unit_score`: the side
 shrunk onto the other's inner edges gains nothing from its size) times how
 well the image matches their templates and their share of the test edges.
 Over the sphere the match is the likeness of gradients
-(:func:`~posevote.inference.templates.gradient_similarity`: pooled over
+(:func:`~posevote.templates.match.gradient_similarity`: pooled over
 cells, a small detail that sets the sides apart counts though drawn a pixel
 or two off); on a turntable it is the grey-level correlation (the gradients
 did worse on COIL's sparse views). The half-turn replaces the found pose where
-it scores higher. It runs with the template re-ranking and the local
-refinement (the ``cluttered`` preset); docs/DEFAULTS.md, "Half-turn check",
-has the measurements.
+it scores higher (``TemplateOptions.half_turn``; docs/DESIGN.md).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import replace
-from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
 from posevote.features.edges import EdgeFeatures
-from posevote.inference.maps import TestMaps
-from posevote.inference.search import SearchSetup
-from posevote.inference.templates import CORRELATION_FLOOR
 from posevote.model.density import PoseModel
-from posevote.model.kernels import K1_CUTOFF
-from posevote.refinement.local import polish_pose, refine_viewpoint, unit_score
+from posevote.refinement.local import PoseWeights, polish_pose, refine_viewpoint, unit_score
 from posevote.refinement.share import edge_share, inside_pose, pose_features
 from posevote.results import Hypothesis
+from posevote.scoring.maps import TestMaps
+from posevote.scoring.score import ScoreSetup, score_options
 
 #: Scales, relative to the found pose's, that the half-turn's polishes start
 #: from: a side framed differently is found at another size (docs/DEFAULTS.md).
 HALF_TURN_SCALES = (0.85, 1.0, 1 / 0.85)
 
 
-def half_turn(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps, setup: SearchSetup,
-              correlate: Callable[[list[Hypothesis]], NDArray[np.float64]], *,
+def half_turn(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps, setup: ScoreSetup,
+              weigh: PoseWeights, *,
               resemble: Callable[[Hypothesis], float], features: EdgeFeatures,
               shape: tuple[int, int]) -> tuple[Hypothesis, bool]:
     """The found pose, or its half-turn where that explains the image better.
@@ -68,14 +62,14 @@ def half_turn(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps, setup: S
     model : PoseModel
     maps : TestMaps
         The test image's narrow maps in image pixels
-        (:func:`posevote.inference.search.image_maps`).
-    setup : SearchSetup
-    correlate : callable
-        Each pose's correlation with the object's grey levels
-        (:func:`posevote.inference.templates.pose_correlations`).
+        (:func:`posevote.scoring.score.narrow_maps`).
+    setup : ScoreSetup
+    weigh : callable
+        Each pose's correlation with the object's grey levels, floored
+        (:func:`posevote.templates.match.correlation_weights`).
     resemble : callable
         How alike a pose's image gradients and its template's are
-        (:func:`posevote.inference.templates.gradient_similarity`).
+        (:func:`posevote.templates.match.gradient_similarity`).
     features : EdgeFeatures
         The test features, image pixels (the two poses' scores in object units).
     shape : (int, int)
@@ -91,21 +85,19 @@ def half_turn(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps, setup: S
     bool
         Whether it is the half-turn.
     """
-    opts: dict[str, Any] = {"viewpoint_kappa": setup.viewpoint_kappa,
-                            "use_weights": setup.use_weights, "k1_cutoff": K1_CUTOFF}
+    opts = score_options(setup)
     # Over the sphere both sides' viewpoints are read between the training views
     # alike; a turntable's found pose was fitted on the search's finer grid.
     sphere = bool(np.ptp(model.view_elevation) > 0)
-    found = (refine_viewpoint(hypothesis, model, maps, setup, correlate) if sphere
+    found = (refine_viewpoint(hypothesis, model, maps, setup, weigh) if sphere
              else polish_pose(hypothesis, model, maps, **opts))
     kept = replace(found, score=hypothesis.score) if sphere else hypothesis
     turned = float(np.mod(hypothesis.azimuth + np.pi, 2.0 * np.pi))
     candidates = [polish_pose(replace(hypothesis, azimuth=turned, scale=hypothesis.scale * f),
                               model, maps, **opts) for f in HALF_TURN_SCALES]
-    product = (np.array([h.score for h in candidates])
-               * np.maximum(correlate(candidates), CORRELATION_FLOOR))
-    other = refine_viewpoint(candidates[int(np.argmax(product))], model, maps, setup, correlate)
-    other_weight = max(float(correlate([other])[0]), CORRELATION_FLOOR)
+    product = np.array([h.score for h in candidates]) * weigh(candidates)
+    other = refine_viewpoint(candidates[int(np.argmax(product))], model, maps, setup, weigh)
+    other_weight = float(weigh([other])[0])
     if not other.score * other_weight > 0:
         return kept, False
     # The side that fits shrunk onto inner edges scores high in pixels; above
@@ -115,7 +107,7 @@ def half_turn(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps, setup: S
         # cell of its template's: pooled gradients count it where grey levels blur it.
         found_like, other_like = resemble(found), resemble(other)
     else:
-        found_like = max(float(correlate([found])[0]), CORRELATION_FLOOR)
+        found_like = float(weigh([found])[0])
         other_like = other_weight
     found_value = unit_score(found, model, features, shape, setup) * found_like
     other_value = unit_score(other, model, features, shape, setup) * other_like

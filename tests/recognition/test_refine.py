@@ -8,9 +8,11 @@ import pytest
 
 from posevote import PoseEstimator
 from posevote.features.edges import extract_edges
-from posevote.inference.search import image_maps, search_maps
+from posevote.inference.setup import search_maps
+from posevote.recognition import RecognitionOptions
+from posevote.recognition.refine import explained, recognize
 from posevote.refinement.fitting import find_modes, refine_mode
-from posevote.refinement.instance import RecognitionOptions, explained, recognize
+from posevote.scoring.score import narrow_maps
 
 
 def _marked(img):
@@ -36,7 +38,7 @@ def two_instances(synthetic_training, draw):
     maps = search_maps(feats, image.shape, est.model_, setup)
     probes = est.probe(image)[0]
     hyps = [refine_mode(probes, v) for v in find_modes(probes)]
-    return est, feats, maps, image_maps(feats, image.shape, setup), setup, hyps
+    return est, feats, maps, narrow_maps(feats, image.shape, setup), setup, hyps
 
 
 def test_the_marked_instance_explains_its_mark(two_instances):
@@ -47,7 +49,7 @@ def test_the_marked_instance_explains_its_mark(two_instances):
 
 def test_recognition_names_the_winner_and_abstains_below_the_margin(two_instances):
     est, feats, maps, fine, setup, hyps = two_instances
-    kw = dict(fitting=True, local=False)
+    kw = dict(fit=True, local=None)
     modes, name, margin = recognize(hyps, feats, est.full_model_, maps, fine, setup,
                                     RecognitionOptions(margin=1.01, search=False), **kw)
     assert name == "b" and margin >= 1.01 and len(modes) == len(hyps)
@@ -58,15 +60,15 @@ def test_recognition_names_the_winner_and_abstains_below_the_margin(two_instance
 
 
 def test_only_the_shortlist_is_judged(two_instances, monkeypatch):
-    import posevote.refinement.instance as instance
-    from posevote.refinement.local import pose_score
+    import posevote.recognition.refine as instance
+    from posevote.scoring.score import pose_score, score_options
 
     est, feats, _, fine, setup, hyps = two_instances
     full = explained([hyps[0]] * 2, feats, est.full_model_, fine, setup)
     monkeypatch.setattr(instance, "RECOGNITION_SHORTLIST", 1)
     short = explained([hyps[0]] * 2, feats, est.full_model_, fine, setup)
     start = [pose_score(hyps[0], est.full_model_.instance_model(i), fine,
-                        max_features=instance.ALIGN_FEATURES, **instance._kw(setup))
+                        max_features=instance.ALIGN_FEATURES, **score_options(setup))
              for i in range(2)]
     kept = int(np.argmax(start))
     assert start[kept] > 0 and short[1 - kept] == 0.0 and short[kept] > 0.0

@@ -1,11 +1,11 @@
 """The search's best probes re-ranked by how well the image matches the object's grey levels.
 
-Beyond the paper (``SearchOptions.rerank = "template"``). Under each of the
+Beyond the paper (``TemplateOptions.rerank``). Under each of the
 best :data:`TEMPLATE_CANDIDATES` probes, and of every further probe whose edge
 score exceeds the best of their products (those that could still come first:
 a product never exceeds its edge score), the test image is sampled at the
 places of the nearest training view's template pixels
-(:mod:`posevote.model.templates`) and compared with them by normalised
+(:mod:`posevote.templates.model`) and compared with them by normalised
 cross-correlation in :data:`TILES` x :data:`TILES` tiles of the template's
 mask; the mean of the best :data:`KEEP` of the tiles (a hidden part of the
 object loses only its own tiles) multiplies the probe's score. Every other
@@ -13,13 +13,16 @@ probe is multiplied by the lowest of those factors, so that the rest keep
 their order below them, as in the coverage re-ranking
 (:mod:`posevote.inference.coverage`).
 
-:func:`gradient_similarity` compares a pose's image with its nearest
-template by their gradients instead (HOG blocks), for the half-turn check
-over the sphere (:mod:`posevote.refinement.halfturn`).
+:func:`correlation_weights` weighs the poses a refinement compares the same
+way (``TemplateOptions.weigh``), and :func:`gradient_similarity` compares a
+pose's image with its nearest template by their gradients instead (HOG
+blocks), for the half-turn check over the sphere
+(:mod:`posevote.templates.halfturn`).
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 
 import cv2
@@ -27,12 +30,12 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
-from posevote.features.appearance import HOG_CELL, hog
+from posevote.features.hog import HOG_CELL, hog
 from posevote.geometry import viewing_direction
-from posevote.inference.search import ProbeSet
+from posevote.inference.probes import ProbeSet
 from posevote.model.density import PoseModel
-from posevote.model.templates import TEMPLATE_BLUR, in_template, template_frame
 from posevote.results import Hypothesis
+from posevote.templates.model import TEMPLATE_BLUR, in_template, template_frame
 
 #: Probes re-ranked at least; beyond them, every probe whose edge score beats the
 #: best product (docs/DEFAULTS.md, "Template re-ranking").
@@ -187,7 +190,7 @@ def correlations(image: NDArray[np.float32], frames: NDArray[np.float64],
         The test image, blurred for the candidates' scale.
     frames : ndarray, shape (N, 2, 3)
         Each candidate's map from template pixels to image pixels
-        (:func:`posevote.model.templates.template_frame`).
+        (:func:`posevote.templates.model.template_frame`).
     view_of : ndarray of int, shape (N,)
         The index into ``pixels`` of each candidate's template.
     pixels : list of TemplatePixels
@@ -229,9 +232,9 @@ def pose_correlations(model: PoseModel, image: NDArray[np.floating],
         If the model has no templates (trained by a posevote without them).
     """
     if model.view_template is None or model.view_template_cell is None:
-        raise ValueError("SearchOptions.rerank='template' needs the views' templates, "
-                         "learnt when the model is fitted with it; fit (or retrain) with "
-                         "search.rerank='template'")
+        raise ValueError("the template steps need the views' templates, learnt when the "
+                         "model is fitted with them; fit (or retrain) with "
+                         "templates=TemplateOptions()")
     nearest = nearest_views(model, azimuth, elevation)
     views, view_of = np.unique(nearest, return_inverse=True)
     view_of = view_of.ravel()
@@ -250,13 +253,27 @@ def pose_correlations(model: PoseModel, image: NDArray[np.floating],
     return out
 
 
+def correlation_weights(model: PoseModel, image: NDArray[np.floating]
+                        ) -> Callable[[Sequence[Hypothesis]], NDArray[np.float64]]:
+    """What weighs poses by the object's grey levels: each pose's :func:`pose_correlations`,
+    floored at :data:`CORRELATION_FLOOR` (a pose that does not correlate keeps a share
+    of its score, so that poses still compare by their edges)."""
+
+    def weigh(hyps: Sequence[Hypothesis]) -> NDArray[np.float64]:
+        found = pose_correlations(model, image, *(np.array([getattr(h, name) for h in hyps])
+                                                  for name in ("azimuth", "elevation",
+                                                               "inplane", "scale", "position")))
+        return np.maximum(found, CORRELATION_FLOOR)
+    return weigh
+
+
 def gradient_similarity(model: PoseModel, image: NDArray[np.floating], hypothesis: Hypothesis
                         ) -> float:
     """How alike the image's gradients and the nearest training view's template's are
     under a pose.
 
     The image is resampled into the template's frame (:func:`template_frame`)
-    and both are described by HOG (:func:`posevote.features.appearance.hog`,
+    and both are described by HOG (:func:`posevote.features.hog.hog`,
     the template's background filled with the image's own pixels); the
     result is the mean cosine of their blocks that lie mostly on the
     template's mask. Histograms of orientations pooled over cells tolerate
@@ -278,8 +295,8 @@ def gradient_similarity(model: PoseModel, image: NDArray[np.floating], hypothesi
         In [0, 1]; 0 where no block lies on the mask.
     """
     if model.view_template is None or model.view_template_cell is None:
-        raise ValueError("gradient_similarity needs the views' templates (search.rerank="
-                         "'template')")
+        raise ValueError("gradient_similarity needs the views' templates (fit with "
+                         "templates=TemplateOptions())")
     view = int(nearest_views(model, np.array([hypothesis.azimuth]),
                              np.array([hypothesis.elevation]))[0])
     template = np.asarray(model.view_template[view], dtype=np.float32)

@@ -4,13 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from posevote.features.appearance import (
-    box_descriptor,
-    descriptor_length,
-    hog,
-    hog_reference,
-    window_shape,
-)
+from posevote.appearance.descriptors import box_descriptor, window_shape
+from posevote.features.hog import descriptor_length, hog, hog_reference
 
 
 def test_window_follows_the_boxes_shape():

@@ -1,27 +1,22 @@
-"""Appearance descriptors of boxes: HOG of the crop, resized to a fixed window.
+"""HOG, the histogram of oriented gradients of a grey image, as one compiled kernel.
 
-Beyond the paper. Unlike the edge votes, a histogram-of-oriented-gradients
-descriptor of a box also sees where edges are *missing* and the shading
-inside it, which tells a car's front from its back. :func:`hog` computes
-what :func:`skimage.feature.hog` does with this module's settings (9
-orientations, 8-pixel cells, 2 x 2 blocks, L2-Hys) as one compiled kernel,
-six times faster; :func:`hog_reference` calls scikit-image, for the tests.
-The model stores one per training view (:mod:`posevote.model.appearance`);
-the verification and the appearance refinement compare test boxes with them.
+:func:`hog` computes what :func:`skimage.feature.hog` does with this module's
+settings (9 orientations, 8-pixel cells, 2 x 2 blocks, L2-Hys);
+:func:`hog_reference` calls scikit-image, for the tests. Unlike the edge
+points, HOG also sees where edges are missing and the shading between them:
+the appearance stages (:mod:`posevote.appearance`) describe boxes with it, and
+the half-turn check compares a pose's image with its template by it
+(:func:`posevote.templates.match.gradient_similarity`).
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from typing import Any
 
-import cv2
 import numba
 import numpy as np
 from numpy.typing import NDArray
 
-#: Height of the descriptor window, pixels; its width follows the training boxes' shape.
-WINDOW_HEIGHT = 48
 #: Pixels across a HOG cell (2 x 2 cells a block).
 HOG_CELL = 8
 _ORIENTATIONS = 9
@@ -29,51 +24,10 @@ _HYS_CLIP = 0.2  # L2-Hys: the block's normalised values are clipped here, then 
 _EPS = 1e-5
 
 
-def window_shape(box_sizes: NDArray[np.float64]) -> tuple[int, int]:
-    """Descriptor window ``(height, width)`` for training boxes ``(w, h)`` (median aspect).
-
-    The height is :data:`WINDOW_HEIGHT`; the width is the median box aspect
-    times that, rounded to whole 8-pixel cells and kept within 3-18 cells.
-    """
-    aspect = float(np.median(box_sizes[:, 0] / box_sizes[:, 1])) if len(box_sizes) else 1.0
-    cells = int(np.clip(round(WINDOW_HEIGHT * aspect / HOG_CELL), 3, 18))
-    return WINDOW_HEIGHT, cells * HOG_CELL
-
-
-def crop_box(image: NDArray[np.floating], box: Sequence[float]) -> NDArray[np.floating]:
-    """The pixels of ``image`` in ``box`` ``(x, y, w, h)`` (rounded; cut off at the borders)."""
-    x, y, w, h = (float(b) for b in box)
-    x0, y0 = max(int(round(x)), 0), max(int(round(y)), 0)
-    x1, y1 = min(int(round(x + w)), image.shape[1]), min(int(round(y + h)), image.shape[0])
-    return image[y0:max(y1, y0), x0:max(x1, x0)]
-
-
-def box_descriptor(image: NDArray[np.floating], box: Sequence[float],
-                   window: tuple[int, int]) -> NDArray[np.float32] | None:
-    """HOG descriptor of the crop of ``image`` in ``box`` resized to ``window``.
-
-    Parameters
-    ----------
-    image : ndarray, shape (H, W)
-        Grey image.
-    box : (x, y, w, h)
-        Box in pixels; the part outside the image is cut off.
-    window : (height, width)
-        Window the crop is resized to (:func:`window_shape`).
-
-    Returns
-    -------
-    ndarray of float32, or None
-        None when less than 8x8 pixels of the box are in the image.
-    """
-    region = crop_box(image, box)
-    if region.shape[0] < 8 or region.shape[1] < 8:
-        return None
-    # A single-precision image is read in place (OpenCV takes the rows' stride).
-    crop = cv2.resize(region if region.dtype == np.float32 else region.astype(np.float32),
-                      (window[1], window[0]), interpolation=cv2.INTER_AREA)
-    return hog(crop)
-
+def descriptor_length(window: tuple[int, int]) -> int:
+    """Length of a :func:`box_descriptor` for ``window``."""
+    blocks_y, blocks_x = window[0] // HOG_CELL - 1, window[1] // HOG_CELL - 1
+    return blocks_y * blocks_x * 4 * _ORIENTATIONS
 
 @numba.njit(cache=True, nogil=True)
 def _gradient_bins(g_row, g_col, n, edge_cos, magnitude, bins):  # pragma: no cover - compiled
@@ -96,7 +50,6 @@ def _gradient_bins(g_row, g_col, n, edge_cos, magnitude, bins):  # pragma: no co
             b += cosine <= edge_cos[e]
         magnitude[c] = m
         bins[c] = b
-
 
 @numba.njit(cache=True, nogil=True)
 def _hog_kernel(crop, cell, clip, eps, out):  # pragma: no cover - compiled
@@ -160,14 +113,12 @@ def _hog_kernel(crop, cell, clip, eps, out):  # pragma: no cover - compiled
                 out[k] = block[i] / norm
                 k += 1
 
-
 def hog(crop: NDArray[Any]) -> NDArray[np.float32]:
     """HOG descriptor of a grey crop (at least 16 x 16 pixels), as :func:`hog_reference`."""
     crop = np.ascontiguousarray(crop, dtype=np.float32)
     out = np.empty(descriptor_length(crop.shape[:2]), dtype=np.float64)
     _hog_kernel(crop, HOG_CELL, _HYS_CLIP, _EPS, out)
     return out.astype(np.float32)
-
 
 def hog_reference(crop: NDArray[np.floating]) -> NDArray[np.float32]:
     """:func:`skimage.feature.hog` with the settings of :func:`hog` (for tests)."""
@@ -176,9 +127,3 @@ def hog_reference(crop: NDArray[np.floating]) -> NDArray[np.float32]:
     return skimage_hog(np.asarray(crop, dtype=np.float32), orientations=_ORIENTATIONS,
                        pixels_per_cell=(HOG_CELL, HOG_CELL), cells_per_block=(2, 2),
                        block_norm="L2-Hys", feature_vector=True).astype(np.float32)
-
-
-def descriptor_length(window: tuple[int, int]) -> int:
-    """Length of a :func:`box_descriptor` for ``window``."""
-    blocks_y, blocks_x = window[0] // HOG_CELL - 1, window[1] // HOG_CELL - 1
-    return blocks_y * blocks_x * 4 * _ORIENTATIONS

@@ -2,7 +2,7 @@
 
 A category model pools the views of several instances; its estimate is
 blurred by their differences. Each instance is scored at the category's
-estimate (Eqs. 5-6, :func:`posevote.inference.recognition.explained_fraction`)
+estimate (Eqs. 5-6, :func:`posevote.recognition.score.explained_fraction`)
 and, when one wins by ``margin``, the pose is estimated again near the
 category's mode with that instance's own (full, unpruned) model. With
 ``search`` (beyond the paper), each instance's model first estimates the pose
@@ -15,23 +15,23 @@ and a grid centred on the median instance misses the small and large ones.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from posevote._options import Options
 from posevote.features.edges import EdgeFeatures
 from posevote.geometry import angular_error
-from posevote.inference.maps import TestMaps
-from posevote.inference.recognition import explained_fraction, recognition_margin
-from posevote.inference.search import SearchSetup, probe
+from posevote.inference.search import probe
+from posevote.inference.setup import SearchSetup
 from posevote.model.density import PoseModel
-from posevote.model.kernels import K1_CUTOFF, ORIENTATION_KAPPA
+from posevote.model.kernels import ORIENTATION_KAPPA
+from posevote.recognition import RecognitionOptions
+from posevote.recognition.score import explained_fraction, recognition_margin
 from posevote.refinement.fitting import FIT_RADIUS_STEPS, refine_mode
-from posevote.refinement.local import local_refine, polish_pose, pose_score
+from posevote.refinement.local import local_refine, polish_pose
 from posevote.results import Hypothesis
+from posevote.scoring.maps import TestMaps
+from posevote.scoring.score import pose_score, score_options
 
 #: Without ``search``, instances are scored at this many of the best category
 #: modes (a front/back confusion of the category can be an instance's right
@@ -50,36 +50,6 @@ ALIGN_FEATURES = 300
 #: recognition's time (docs/DEFAULTS.md); on the COIL category cross-validation (4 instances
 #: a category) 3 cost 6 degrees of the summed mean errors.
 RECOGNITION_SHORTLIST = 4
-
-
-@dataclass(frozen=True, kw_only=True, repr=False)
-class RecognitionOptions(Options):
-    """Instance recognition and re-estimation for models of several instances (Sec. III-B).
-
-    Attributes
-    ----------
-    margin : float, default 1.05
-        The winner's score must be at least this multiple of the runner-up's
-        (chosen by the COIL category cross-validation on training views;
-        1.0 always refines with the most similar instance).
-    search : bool, default True
-        Each instance's full model estimates the pose on its own and the
-        instances are judged at their own estimates (beyond the paper);
-        False: the paper's scoring at the category's modes and re-estimation
-        near them.
-    """
-
-    margin: float = 1.05
-    search: bool = True
-
-    def __post_init__(self) -> None:
-        self._number("margin", low=1.0, high=100.0)
-        self._flag("search")
-
-
-def _kw(setup: SearchSetup) -> dict[str, Any]:
-    return {"viewpoint_kappa": setup.viewpoint_kappa, "use_weights": setup.use_weights,
-            "k1_cutoff": K1_CUTOFF}
 
 
 def explained(hypotheses: Sequence[Hypothesis], features: EdgeFeatures, full: PoseModel,
@@ -111,7 +81,7 @@ def explained(hypotheses: Sequence[Hypothesis], features: EdgeFeatures, full: Po
     ndarray, shape (n_instances,)
         0 for the instances left off the shortlist.
     """
-    kw = _kw(setup)
+    kw = score_options(setup)
     subs = [full.instance_model(i) for i in range(len(full.instance_names))]
     judged = np.arange(len(subs))
     if len(subs) > RECOGNITION_SHORTLIST:
@@ -134,14 +104,15 @@ def explained(hypotheses: Sequence[Hypothesis], features: EdgeFeatures, full: Po
 
 def instance_refine(instance: int, hypothesis: Hypothesis, full: PoseModel,
                     search_maps: TestMaps | Sequence[TestMaps | None], fine: TestMaps,
-                    setup: SearchSetup, *, fitting: bool, local: bool, near: bool = True
+                    setup: SearchSetup, *, fit: bool, local: str | None, near: bool = True
                     ) -> Hypothesis:
     """Re-estimate near ``hypothesis`` with one instance's full model (Sec. III-B).
 
     With ``near=False`` the instance searches every viewpoint, on the scale
-    grid centred on its training size (``RecognitionOptions.search``); with
-    ``local`` the result is refined locally
-    (:func:`posevote.refinement.local.local_refine`).
+    grid centred on its training size (``RecognitionOptions.search``). Its
+    best mode is refined as the estimate refines its own: fitted with
+    ``fit``, refined locally with ``local`` (``"polish"`` or ``"profile"``,
+    :func:`posevote.refinement.local.local_refine`).
     """
     model = full.instance_model(instance)
     probes = probe(model, search_maps, setup, near=hypothesis) if near else \
@@ -149,15 +120,16 @@ def instance_refine(instance: int, hypothesis: Hypothesis, full: PoseModel,
     if not probes.score.any():
         return hypothesis
     v = int(np.argmax(probes.score.max(axis=(1, 2))))
-    refined = refine_mode(probes, v, fit=fitting, radius_steps=FIT_RADIUS_STEPS)
-    if local:
-        refined = local_refine(probes, v, refined, model, setup, fitting=fitting, maps=fine)
+    refined = refine_mode(probes, v, fit=fit, radius_steps=FIT_RADIUS_STEPS)
+    if local is not None:
+        refined = local_refine(probes, v, refined, model, setup, profile=local == "profile",
+                               narrow=lambda: fine, scale_step=setup.options.scale_step())
     return refined
 
 
 def recognize(hypotheses: list[Hypothesis], features: EdgeFeatures, full: PoseModel,
               search_maps: TestMaps | Sequence[TestMaps | None], fine: TestMaps,
-              setup: SearchSetup, options: RecognitionOptions, *, fitting: bool, local: bool
+              setup: SearchSetup, options: RecognitionOptions, *, fit: bool, local: str | None
               ) -> tuple[list[Hypothesis], str, float]:
     """Recognise the instance and re-estimate with its model (Sec. III-B).
 
@@ -175,8 +147,10 @@ def recognize(hypotheses: list[Hypothesis], features: EdgeFeatures, full: PoseMo
         The narrow maps.
     setup : SearchSetup
     options : RecognitionOptions
-    fitting, local : bool
-        Fit and locally refine the instance's estimate.
+    fit : bool
+        Fit the instance's estimate (:attr:`~posevote.refinement.RefineOptions.fit`).
+    local : {None, "polish", "profile"}
+        Refine it locally (:attr:`~posevote.refinement.RefineOptions.local`).
 
     Returns
     -------
@@ -190,7 +164,7 @@ def recognize(hypotheses: list[Hypothesis], features: EdgeFeatures, full: PoseMo
     names = full.instance_names
     if options.search:
         own = [instance_refine(i, hypotheses[0], full, search_maps, fine, setup,
-                               fitting=fitting, local=local, near=False)
+                               fit=fit, local=local, near=False)
                for i in range(len(names))]
         best, margin = recognition_margin(explained(own, features, full, fine, setup))
         if margin < options.margin:
@@ -206,5 +180,5 @@ def recognize(hypotheses: list[Hypothesis], features: EdgeFeatures, full: PoseMo
             return hypotheses, "", margin
         at = int(np.argmax(per_mode[:, best]))
         refined = instance_refine(best, hypotheses[at], full, search_maps, fine, setup,
-                                  fitting=fitting, local=local)
+                                  fit=fit, local=local)
     return [refined] + [h for k, h in enumerate(hypotheses) if k != at], names[best], margin

@@ -4,7 +4,7 @@ Beyond the paper, for dense training views of a category in full frames
 (the ``category`` preset). The edge votes find the object and tell its
 front from its back; the HOG descriptor of a well-placed box pins the
 viewpoint down. The best mode's box is moved toward the object by the box
-regressions (:mod:`posevote.model.appearance`), or, after the verification,
+regressions (:mod:`posevote.appearance.model`), or, after the verification,
 the verified box is kept (the appearance chose it among the candidates);
 then the viewpoint becomes that of the training view whose descriptor is
 nearest, among those within :data:`APPEARANCE_WINDOW_DEG` of the estimate.
@@ -17,10 +17,11 @@ from dataclasses import replace
 import numpy as np
 from numpy.typing import NDArray
 
-from posevote.features.appearance import box_descriptor
+from posevote.appearance import AppearanceOptions
+from posevote.appearance.descriptors import box_descriptor
+from posevote.appearance.model import AppearanceModel
+from posevote.appearance.verify import jittered_nearest_view, nearest_view, regress_described
 from posevote.geometry import box_centre, viewing_direction
-from posevote.inference.verification import jittered_nearest_view, nearest_view, regress_described
-from posevote.model.appearance import AppearanceModel, AppearanceOptions
 from posevote.model.density import PoseModel
 from posevote.results import Hypothesis
 

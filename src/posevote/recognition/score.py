@@ -22,10 +22,9 @@ from numpy.typing import NDArray
 
 from posevote.features.edges import EdgeFeatures
 from posevote.geometry import rotate_points
-from posevote.inference.search import viewpoint_features
 from posevote.model.density import PoseModel
-from posevote.model.kernels import orientation_kernel, position_kernel
 from posevote.results import Hypothesis
+from posevote.scoring.score import explained_sums, viewpoint_features
 
 
 def explained_fraction(test: EdgeFeatures, model: PoseModel, hypothesis: Hypothesis, *,
@@ -50,7 +49,7 @@ def explained_fraction(test: EdgeFeatures, model: PoseModel, hypothesis: Hypothe
     position_sigma, orientation_kappa : float
         Appearance kernel widths, pixels.
     viewpoint_kappa, use_weights, k1_cutoff
-        As in :func:`posevote.inference.search.viewpoint_features`.
+        As in :func:`posevote.scoring.score.viewpoint_features`.
     box_margin : float, optional
         The box is grown by this fraction of its size on each side.
 
@@ -121,68 +120,10 @@ def median_spacing_reference(xy: NDArray[np.float64]) -> float:
     return float(np.median(cKDTree(xy).query(xy, k=2)[0][:, 1])) if len(xy) > 1 else 1.0
 
 
-@numba.njit(cache=True, nogil=True)
-def _explained_sums(xy, theta, strength, test_xy, test_theta, order, sigma, kappa, reach
-                    ):  # pragma: no cover - compiled
-    """:func:`explained_sums` over the test points sorted by x (``order``)."""
-    n = test_xy.shape[0]
-    sorted_x = np.empty(n)
-    for k in range(n):
-        sorted_x[k] = test_xy[order[k], 0]
-    # cos 2(a - b) from the doubled angles' cosines and sines, and both kernels
-    # under one exponential: the pairs' transcendentals were the whole cost.
-    tc = np.cos(2.0 * test_theta)
-    ts = np.sin(2.0 * test_theta)
-    total = np.zeros(n)
-    for i in range(xy.shape[0]):
-        mc = np.cos(2.0 * theta[i])
-        ms = np.sin(2.0 * theta[i])
-        k = np.searchsorted(sorted_x, xy[i, 0] - reach)
-        while k < n and sorted_x[k] <= xy[i, 0] + reach:
-            j = order[k]
-            dx = test_xy[j, 0] - xy[i, 0]
-            dy = test_xy[j, 1] - xy[i, 1]
-            d2 = dx * dx + dy * dy
-            if d2 <= reach * reach:
-                total[j] += strength[i] * np.exp(-d2 / (2.0 * sigma * sigma)
-                                                 + kappa * (mc * tc[j] + ms * ts[j] - 1.0))
-            k += 1
-    return total
 
 
-def explained_sums(xy: NDArray[np.float64], theta: NDArray[np.float64],
-                   strength: NDArray[np.float64], test_xy: NDArray[np.float64],
-                   test_theta: NDArray[np.float64], sigma: float, kappa: float, *,
-                   reach_sigmas: float = 3.0) -> NDArray[np.float64]:
-    """For each test point, the model points' kernel sum within reach (Eq. 5's terms).
-
-    ``strength[i] * exp(-d^2 / 2 sigma^2) * exp(kappa (cos 2 dtheta - 1))``
-    summed over the model points ``i`` within ``reach_sigmas * sigma`` of the
-    test point (3 for Eq. 5).
-    """
-    f64 = np.float64
-    test_xy = np.ascontiguousarray(test_xy, dtype=f64)
-    order = np.argsort(test_xy[:, 0], kind="stable") if len(test_xy) else np.zeros(0, np.int64)
-    return _explained_sums(np.ascontiguousarray(xy, dtype=f64),
-                           np.ascontiguousarray(theta, dtype=f64),
-                           np.ascontiguousarray(strength, dtype=f64), test_xy,
-                           np.ascontiguousarray(test_theta, dtype=f64), order, float(sigma),
-                           float(kappa), float(reach_sigmas) * float(sigma))
 
 
-def explained_sums_reference(xy: NDArray[np.float64], theta: NDArray[np.float64],
-                             strength: NDArray[np.float64], test_xy: NDArray[np.float64],
-                             test_theta: NDArray[np.float64], sigma: float, kappa: float
-                             ) -> NDArray[np.float64]:
-    """:func:`explained_sums` by k-d trees and the kernels of :mod:`posevote.model.kernels`."""
-    from scipy.spatial import cKDTree
-
-    pairs = cKDTree(xy).sparse_distance_matrix(cKDTree(test_xy), 3.0 * sigma,
-                                               output_type="ndarray")
-    i, j, dist = pairs["i"], pairs["j"], pairs["v"]
-    terms = (strength[i] * position_kernel(dist ** 2, sigma)
-             * orientation_kernel(theta[i] - test_theta[j], kappa))
-    return np.bincount(j, weights=terms, minlength=len(test_xy)).astype(np.float64)
 
 
 def recognition_margin(scores: NDArray[np.float64]) -> tuple[int, float]:

@@ -47,7 +47,7 @@ class TestMaps:
         Test density phi (Eq. 2, peak-1 kernels) for ``n_density_bins``
         evenly spaced orientations, on a grid of ``grid x grid`` pixel cells
         (cell ``i`` centred on pixel ``grid * i + (grid - 1) / 2``) and read
-        bilinearly (:func:`posevote.inference.voting.phi_at`).
+        bilinearly (:func:`posevote.scoring.score.phi_at`).
     grid : int
         Pixels per cell of ``density``: 1 for narrow kernels, more for wide
         ones (which a coarse grid resolves, for a ninth of the memory).

@@ -5,7 +5,7 @@ on dense textures the clutter explains as many edges as the object does. The
 object's own grey levels tell them apart: each training view keeps a small
 template of its box (:data:`TEMPLATE_SIDE` pixels across its diagonal, its
 in-plane angle undone, NaN outside its mask and its image), blurred by
-:data:`TEMPLATE_BLUR` template pixels. :mod:`posevote.inference.templates`
+:data:`TEMPLATE_BLUR` template pixels. :mod:`posevote.templates.match`
 compares the test image with it under each of the search's best probes.
 """
 

@@ -6,7 +6,7 @@ part of the object at too small a scale, or clutter, while a probe a little
 lower in the ranking has the right box. Verification looks at the image
 *inside* each of the best candidates' boxes: each box is moved toward the
 object by the box regression, its descriptor
-(:mod:`posevote.features.appearance`) compared with those of the training
+(:mod:`posevote.appearance.descriptors`) compared with those of the training
 views near the candidate's viewpoint, among the candidates that the
 objectness classifier finds most object-like, and the candidate nearest to
 a training view wins (:func:`verify_candidates`). :func:`verify` then
@@ -20,14 +20,17 @@ from collections.abc import Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from posevote.features.appearance import box_descriptor
+from posevote.appearance import AppearanceOptions
+from posevote.appearance.descriptors import box_descriptor
+from posevote.appearance.model import REGRESSION_STEPS, AppearanceModel, shift_box
 from posevote.features.edges import EdgeFeatures
 from posevote.geometry import box_centre, viewing_direction
-from posevote.inference.maps import TestMaps, restrict_maps
-from posevote.inference.search import ProbeSet, SearchSetup, near_scales, probe, probe_spacing
-from posevote.model.appearance import REGRESSION_STEPS, AppearanceModel, AppearanceOptions, shift_box
+from posevote.inference.probes import ProbeSet, probe_spacing
+from posevote.inference.search import near_scales, probe
+from posevote.inference.setup import SearchSetup
 from posevote.model.density import PoseModel
 from posevote.results import Hypothesis
+from posevote.scoring.maps import TestMaps, restrict_maps
 
 #: The search again inside the verified box keeps the test edges within the
 #: box grown by this fraction of its size on every side: the regressed box

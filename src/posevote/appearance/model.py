@@ -1,14 +1,14 @@
 """The appearance model: training views' descriptors, an objectness classifier, box regressions.
 
 Beyond the paper, for full cluttered frames (the ``category`` preset). At
-training time every view's box is described (:mod:`posevote.features.appearance`);
+training time every view's box is described (:mod:`posevote.appearance.descriptors`);
 a linear classifier (scikit-learn's :class:`~sklearn.svm.LinearSVC`) learns
 object against random boxes of the training images that miss the object
 (:func:`background_boxes`, :func:`train_objectness`), and ridge regressions
 per azimuth range learn to move a box toward the object from boxes jittered
 around the training boxes (:func:`train_box_regression`). The test side is
-:mod:`posevote.inference.verification` and
-:mod:`posevote.refinement.appearance`.
+:mod:`posevote.appearance.verify` and
+:mod:`posevote.appearance.refine`.
 """
 
 from __future__ import annotations
@@ -20,52 +20,9 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from posevote._options import Options
-from posevote.features.appearance import (
-    box_descriptor,
-    crop_box,
-    descriptor_length,
-    window_shape,
-)
+from posevote.appearance.descriptors import box_descriptor, crop_box, window_shape
+from posevote.features.hog import descriptor_length
 from posevote.geometry import box_iou
-
-
-@dataclass(frozen=True, kw_only=True, repr=False)
-class AppearanceOptions(Options):
-    """The appearance stages: verification of the search's candidates and the nearest view.
-
-    Beyond the paper. The defaults are the ``category`` preset's, chosen on
-    ``epfl-cv`` (docs/DEFAULTS.md).
-
-    Attributes
-    ----------
-    candidates : int, default 40
-        The search's best probes whose (regressed) box is compared with the
-        training views; the pose is then estimated again inside the winner's
-        box. 0: no verification (the best mode's box is still regressed and
-        its viewpoint taken from the nearest view).
-    tolerance_deg : float or None, default 40.0
-        A candidate is compared with the training views within this angle of
-        its viewpoint; None: one probe spacing.
-    objectness_weight : float, default 0.5
-        Candidates are ranked by their distance to the nearest training view
-        minus this times the classifier's score.
-    jitter : float, default 0.05
-        The final viewpoint is the medoid of the nearest training views of
-        the kept box and 26 boxes around it, shifted by this fraction of its
-        size and scaled by one plus or minus it; 0: the kept box's alone.
-    """
-
-    candidates: int = 40
-    tolerance_deg: float | None = 40.0
-    objectness_weight: float = 0.5
-    jitter: float = 0.05
-
-    def __post_init__(self) -> None:
-        self._number("candidates", low=0, high=10_000, integer=True)
-        self._number("tolerance_deg", low=0.0, high=180.0, low_open=True, optional=True)
-        self._number("objectness_weight", low=0.0, high=100.0)
-        self._number("jitter", low=0.0, high=0.5, high_open=True)
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -75,7 +32,7 @@ class AppearanceModel:
     Attributes
     ----------
     window : (int, int)
-        Descriptor window (:func:`~posevote.features.appearance.window_shape`).
+        Descriptor window (:func:`~posevote.appearance.descriptors.window_shape`).
     descriptors : ndarray of float32, shape (K, D)
         One descriptor per training view (zeros where its box is too small).
     objectness : ndarray, shape (D + 1,), or None

@@ -2,10 +2,11 @@ import numpy as np
 import pytest
 
 from posevote.features.edges import EdgeFeatures
-from posevote.inference.search import SearchOptions, SearchSetup, image_maps
+from posevote.inference.setup import SearchOptions, SearchSetup
 from posevote.model.density import build_model
-from posevote.refinement.halfturn import half_turn
 from posevote.results import Hypothesis
+from posevote.scoring.score import narrow_maps
+from posevote.templates.halfturn import half_turn
 
 _SETUP = SearchSetup(options=SearchOptions(), position_sigma=2.0, edge_spacing=2.0,
                      viewpoint_kappa=10.0)
@@ -41,7 +42,7 @@ def _pose(azimuth, scale, position=(80.0, 80.0)):
 def _turn(pose, model, view, correlate=None, resemble=None):
     """``half_turn`` of ``pose`` in an image that shows ``view`` at (80, 80)."""
     feats = EdgeFeatures(xy=view.xy + 80.0, theta=view.theta)
-    found, turned = half_turn(pose, model, image_maps(feats, (160, 160), _SETUP), _SETUP,
+    found, turned = half_turn(pose, model, narrow_maps(feats, (160, 160), _SETUP), _SETUP,
                               correlate or _flat, resemble=resemble or _alike, features=feats,
                               shape=(160, 160))
     assert turned == (np.cos(found.azimuth - pose.azimuth) < 0)

@@ -2,7 +2,7 @@ import cv2
 import numpy as np
 import pytest
 
-from posevote.model.templates import TEMPLATE_SIDE, template_frame, view_template
+from posevote.templates.model import TEMPLATE_SIDE, template_frame, view_template
 
 
 def _pattern(size=128):
@@ -60,11 +60,10 @@ def test_template_undoes_the_views_inplane_angle():
 
 def test_training_keeps_each_views_template(synthetic_training):
     from posevote import PoseEstimator
-    from posevote.inference.search import SearchOptions
+    from posevote.templates import TemplateOptions
 
     images, az, boxes = synthetic_training
-    model = PoseEstimator(search=SearchOptions(rerank="template")).fit(images, az,
-                                                                      boxes=boxes).model_
+    model = PoseEstimator(templates=TemplateOptions()).fit(images, az, boxes=boxes).model_
     assert model.view_template.shape == (model.n_views, TEMPLATE_SIDE, TEMPLATE_SIDE)
     assert np.all(model.view_template_cell > 0)
     # The synthetic views all have the reference size: cells are the views' own.

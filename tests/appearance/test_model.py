@@ -6,12 +6,10 @@ import numpy as np
 from hypothesis import given
 from hypothesis import strategies as st
 
-from posevote.features.appearance import box_descriptor, descriptor_length
-from posevote.geometry import box_iou
-from posevote.inference.verification import regress_box, regress_described
-from posevote.model.appearance import (
+from posevote.appearance import AppearanceOptions
+from posevote.appearance.descriptors import box_descriptor
+from posevote.appearance.model import (
     AppearanceCollector,
-    AppearanceOptions,
     background_boxes,
     box_offsets,
     jittered_boxes,
@@ -19,6 +17,9 @@ from posevote.model.appearance import (
     train_box_regression,
     train_objectness,
 )
+from posevote.appearance.verify import regress_box, regress_described
+from posevote.features.hog import descriptor_length
+from posevote.geometry import box_iou
 
 
 def test_background_boxes_miss_the_object_and_repeat_with_the_seed():

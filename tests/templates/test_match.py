@@ -5,8 +5,10 @@ import cv2
 import numpy as np
 import pytest
 
-from posevote.inference import templates
-from posevote.inference.templates import (
+from posevote.results import Hypothesis
+from posevote.templates import TemplateOptions
+from posevote.templates import match as templates
+from posevote.templates.match import (
     TILES,
     correlations,
     gradient_similarity,
@@ -15,8 +17,7 @@ from posevote.inference.templates import (
     template_pixels,
     tile_correlation,
 )
-from posevote.model.templates import TEMPLATE_SIDE, template_frame
-from posevote.results import Hypothesis
+from posevote.templates.model import TEMPLATE_SIDE, template_frame
 
 
 def _template(seed=0):
@@ -102,7 +103,8 @@ def test_template_reranking_tells_the_object_from_its_negative(fitted_estimator,
                                                                monkeypatch):
     from posevote import PoseEstimator
 
-    est = PoseEstimator(search=replace(fitted_estimator.search, rerank="template")).fit(
+    est = PoseEstimator(search=fitted_estimator.search,
+                        templates=TemplateOptions(half_turn=False)).fit(
         *synthetic_training[:2], boxes=synthetic_training[2])
     azimuth = np.radians(60)
     # The edges alone score the object and its negative alike.
@@ -139,7 +141,8 @@ def test_template_reranking_reaches_past_its_candidates_for_a_probe_that_could_w
         fitted_estimator, synthetic_training, draw, monkeypatch):
     from posevote import PoseEstimator
 
-    est = PoseEstimator(search=replace(fitted_estimator.search, rerank="template")).fit(
+    est = PoseEstimator(search=fitted_estimator.search,
+                        templates=TemplateOptions(half_turn=False)).fit(
         *synthetic_training[:2], boxes=synthetic_training[2])
     # The side on which the negative's edges score best: the one candidate is the negative.
     images = [_copies(draw, np.radians(60), true_at=t, negative_at=1 - t) for t in (0, 1)]
@@ -164,11 +167,11 @@ def test_template_reranking_reaches_past_its_candidates_for_a_probe_that_could_w
 def test_a_model_not_fitted_for_templates_is_refused(fitted_estimator, draw):
     assert fitted_estimator.model_.view_template is None     # fitted without the re-ranking
     probes, _ = fitted_estimator.probe(draw(0.0))
-    with pytest.raises(ValueError, match="rerank='template' needs the views' templates, "
-                                         "learnt when the model is fitted with it"):
+    with pytest.raises(ValueError, match="the template steps need the views' templates, "
+                                         "learnt when the model is fitted with them"):
         rerank_by_template(probes, fitted_estimator.model_, draw(0.0))
-    with pytest.raises(ValueError, match="fit \\(or retrain\\) with search.rerank='template'"):
-        copy.deepcopy(fitted_estimator).set_params(search__rerank="template").estimate(
+    with pytest.raises(ValueError, match="fit \\(or retrain\\) with templates=TemplateOptions"):
+        copy.deepcopy(fitted_estimator).set_params(templates=TemplateOptions()).estimate(
             draw(0.0))
 
 

@@ -1,0 +1,576 @@
+"""The estimate as a sequence of named steps (Sec. II-B, and each idea beyond the paper).
+
+An estimate starts from the test image's edge features (:func:`begin`) and
+runs the steps of :data:`STEPS` that its settings switch on, in that order,
+each a plain function from one frozen :class:`EstimateState` to the next:
+
+====================  ==============================  ===========================================
+step                  switch                          what it does
+====================  ==============================  ===========================================
+search                always                          probes of p(w) on the grid (Fig. 2)
+rerank by coverage    ``search.rerank="coverage"``    the best probes times the test edges they
+                                                      explain
+rerank by template    ``templates.rerank``            the best probes times their grey-level
+                                                      match
+verify                ``appearance.candidates``       the best probes' boxes by HOG; the search
+                                                      again inside the winner's box
+modes                 always                          the profile's peaks, as their best probes
+fit                   ``refine.fit``                  each mode fitted to the probes around it
+                                                      (Sec. II-B)
+rescale               ``refine.rescale``              the best mode's scale on the narrow kernel
+local refinement      ``refine.local``                the best mode on the exact p(w)
+half-turn             ``templates.half_turn``         the best mode or its half-turn
+share scale           ``refine.share_scale``          the scale from both directions
+recognise             ``recognition``                 the instance, and its own estimate
+                                                      (Sec. III-B)
+appearance            ``appearance``                  the box regressed, the nearest view's
+                                                      viewpoint
+outline               ``refine.outline``              each mode's box from its views' outline
+reject                always (``min_score``)          the modes that score above ``min_score``
+probabilities         always                          each mode's probability
+place                 always                          ``R_cam_obj``, ``t_cam_obj`` (a camera)
+====================  ==============================  ===========================================
+
+A switch reads only its own step's option. What several steps read is built
+once, where it is first needed, and handed on: the search's maps, the narrow
+maps (:func:`~posevote.scoring.score.narrow_maps`) and the grey image in
+single precision. A step may also say what it needs from training or from
+an earlier step (:attr:`Step.needs`): the templates, the appearance model,
+or probes that are only ranked (the verification moves the boxes itself, so
+the search need not polish them); :func:`artefacts` collects them, and
+``fit`` learns what the steps ask for. docs/DESIGN.md describes each step.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, fields, replace
+from functools import partial
+from typing import Any, Generic, TypeVar
+
+import numpy as np
+from numpy.typing import NDArray
+
+from posevote.appearance import AppearanceOptions
+from posevote.appearance.model import AppearanceModel
+from posevote.appearance.refine import appearance_refine
+from posevote.appearance.verify import verify
+from posevote.camera import Camera, place_all
+from posevote.features.edges import EdgeFeatures, EdgeOptions, without_box
+from posevote.geometry import box_iou, rotate_points
+from posevote.inference.coverage import rerank_by_coverage
+from posevote.inference.probes import ProbeSet
+from posevote.inference.search import probe
+from posevote.inference.setup import SearchOptions, SearchSetup, search_maps
+from posevote.model.density import origin_offset
+from posevote.model.kernels import K1_CUTOFF, KernelOptions
+from posevote.model.outline import outline_at, outline_box
+from posevote.model.training import TrainedModel
+from posevote.recognition import RecognitionOptions
+from posevote.recognition.refine import recognize
+from posevote.refinement import RefineOptions
+from posevote.refinement.fitting import FIT_RADIUS_STEPS, find_modes, refine_mode
+from posevote.refinement.local import PoseWeights, local_refine, rescale_mode
+from posevote.refinement.probability import scored_viewpoints, with_probabilities
+from posevote.refinement.share import share_scale
+from posevote.results import Hypothesis, PoseEstimate
+from posevote.scoring.maps import TestMaps
+from posevote.scoring.score import narrow_maps
+from posevote.templates import TemplateOptions
+from posevote.templates.halfturn import half_turn
+from posevote.templates.match import correlation_weights, gradient_similarity, rerank_by_template
+
+#: Several objects in one image: a box overlapping one already found by more
+#: than this IoU is the same object found again.
+OBJECT_OVERLAP = 0.3
+#: Several objects: the edges this far around a found box (a share of its
+#: size) go with it, so that its outline does not attract the next search.
+OBJECT_MARGIN = 0.1
+
+T = TypeVar("T")
+
+
+class Built(Generic[T]):
+    """A value several steps read, built on first use and then kept."""
+
+    def __init__(self, build: Callable[[], T]) -> None:
+        self._build: Callable[[], T] | None = build
+        self._value: T | None = None
+
+    def __call__(self) -> T:
+        if self._build is not None:
+            self._value, self._build = self._build(), None
+        return self._value  # type: ignore[return-value]
+
+
+@dataclass(frozen=True, kw_only=True)
+class Settings:
+    """The estimator's parameters that the steps read (:class:`~posevote.PoseEstimator`'s)."""
+
+    weights: bool
+    edges: EdgeOptions
+    kernel: KernelOptions
+    search: SearchOptions
+    refine: RefineOptions
+    templates: TemplateOptions | None
+    recognition: RecognitionOptions | None
+    appearance: AppearanceOptions | None
+    max_modes: int
+    min_score: float
+    n_jobs: int
+
+    @classmethod
+    def of(cls, params: dict[str, Any]) -> Settings:
+        """The settings among an estimator's parameters (``get_params(deep=False)``)."""
+        return cls(**{f.name: params[f.name] for f in fields(cls)})
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class EstimateState:
+    """What the steps know of one estimate; each step returns the next state.
+
+    Attributes
+    ----------
+    settings : Settings
+    trained : TrainedModel
+        The fitted model (searched and full), its kernels and extensions.
+    setup : SearchSetup
+        The search's grid and the kernels every score reads.
+    needs : frozenset of str
+        What the steps to run need (:func:`artefacts`).
+    image : ndarray, shape (H, W)
+        The grey test image.
+    features : EdgeFeatures
+        Its edge features (after the verification: those in the verified box).
+    camera : Camera or None
+    narrow : Built
+        The narrow maps of ``features``, built when a step first reads them.
+    grey : Built
+        ``image`` in single precision (the HOG descriptors read it).
+    search_maps : TestMaps or list of (TestMaps or None), or None
+        The search's maps (after the verification: restricted to its box).
+    probes : ProbeSet or None
+    modes : tuple of int
+        Each mode's best probed viewpoint, best first.
+    hypotheses : tuple of Hypothesis
+        The modes' poses, best first.
+    verified_box : (x, y, w, h) or None
+        The verification winner's regressed box.
+    instance, instance_margin : str, float
+        The recognised instance and its margin.
+    top_score : float
+        The best mode's score before the rejection.
+    progress : callable or None
+        Called with 1 after each viewpoint the search probes.
+    """
+
+    settings: Settings
+    trained: TrainedModel
+    setup: SearchSetup
+    needs: frozenset[str]
+    image: NDArray[np.float64]
+    features: EdgeFeatures
+    camera: Camera | None = None
+    narrow: Built[TestMaps]
+    grey: Built[NDArray[np.float32]]
+    search_maps: TestMaps | list[TestMaps | None] | list[TestMaps] | None = None
+    probes: ProbeSet | None = None
+    modes: tuple[int, ...] = ()
+    hypotheses: tuple[Hypothesis, ...] = ()
+    verified_box: tuple[float, float, float, float] | None = None
+    instance: str = ""
+    instance_margin: float = math.nan
+    top_score: float = 0.0
+    progress: Callable[[int], None] | None = field(default=None, repr=False)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """The image's shape (H, W)."""
+        return int(self.image.shape[0]), int(self.image.shape[1])
+
+    @property
+    def weigh(self) -> PoseWeights | None:
+        """What weighs the poses the local refinement compares (``templates.weigh``)."""
+        t = self.settings.templates
+        return correlation_weights(self.trained.model, self.image) if t and t.weigh else None
+
+    def with_features(self, features: EdgeFeatures) -> EstimateState:
+        """The state on other features: their narrow maps are new."""
+        return replace(self, features=features,
+                       narrow=Built(partial(narrow_maps, features, self.shape, self.setup)))
+
+    def with_hypotheses(self, hypotheses: Sequence[Hypothesis]) -> EstimateState:
+        return replace(self, hypotheses=tuple(hypotheses))
+
+    def best_replaced(self, best: Hypothesis) -> EstimateState:
+        """The state with the best mode's pose replaced."""
+        return replace(self, hypotheses=(best, *self.hypotheses[1:]))
+
+
+# -- the steps, in the order they run --------------------------------------------------
+
+def search(state: EstimateState) -> EstimateState:
+    """Probe p(w) on the grid (Fig. 2): polished, unless a later step only ranks the probes."""
+    model = state.trained.model
+    maps = state.search_maps if state.search_maps is not None else search_maps(
+        state.features, state.shape, model, state.setup)
+    probes = probe(model, maps, state.setup, progress=state.progress,
+                   polish="ranked probes" not in state.needs)
+    return replace(state, search_maps=maps, probes=probes)
+
+
+def rerank_coverage(state: EstimateState) -> EstimateState:
+    """The best probes' scores times the share of the test edges in their box they explain."""
+    assert state.probes is not None and state.search_maps is not None
+    maps: Any = state.search_maps
+    return replace(state, probes=rerank_by_coverage(state.probes, state.trained.model, maps,
+                                                    state.setup))
+
+
+def rerank_template(state: EstimateState) -> EstimateState:
+    """The best probes' scores times their grey-level match with the nearest template."""
+    assert state.probes is not None
+    return replace(state, probes=rerank_by_template(state.probes, state.trained.model,
+                                                    state.image))
+
+
+def verify_boxes(state: EstimateState) -> EstimateState:
+    """The best probes verified by appearance; the search again inside the winner's box, or
+    polished over the whole image where no candidate could be verified."""
+    assert state.probes is not None and state.search_maps is not None
+    found = None
+    if state.probes.score.any():
+        options = state.settings.appearance
+        assert options is not None
+        maps: Any = state.search_maps
+        found = verify(state.probes, state.grey(), state.features, maps, state.trained.model,
+                       _appearance_model(state), options, state.setup)
+    if found is None:
+        again = replace(state, needs=state.needs - {"ranked probes"})
+        return run(again, [s for s in STEPS[:STEPS.index(VERIFY)]
+                           if s.active(state.settings)])
+    features, maps, probes, box = found
+    return replace(state.with_features(features), search_maps=maps, probes=probes,
+                   verified_box=box)
+
+
+def modes(state: EstimateState) -> EstimateState:
+    """The peaks of the score profile over viewpoints, each as its best probe."""
+    assert state.probes is not None
+    found = find_modes(state.probes, max_modes=state.settings.max_modes)
+    return replace(state, modes=tuple(found), hypotheses=tuple(
+        refine_mode(state.probes, v, fit=False, radius_steps=FIT_RADIUS_STEPS) for v in found))
+
+
+def fit(state: EstimateState) -> EstimateState:
+    """Each mode's pose fitted to the probes around it (Sec. II-B)."""
+    assert state.probes is not None
+    return state.with_hypotheses([refine_mode(state.probes, v, fit=True,
+                                              radius_steps=FIT_RADIUS_STEPS)
+                                  for v in state.modes])
+
+
+def rescale(state: EstimateState) -> EstimateState:
+    """The best mode's scale and position on the narrow kernel (models of one instance)."""
+    model = state.trained.model
+    if not state.hypotheses or len(model.instance_names) > 1:
+        return state
+    return state.best_replaced(rescale_mode(state.hypotheses[0], model, state.narrow(),
+                                            state.setup))
+
+
+def local(state: EstimateState) -> EstimateState:
+    """The best mode refined on the exact p(w) with the narrow kernel (``"polish"``), its
+    viewpoint too (``"profile"``), in object units where the search was."""
+    if not state.hypotheses:
+        return state
+    assert state.probes is not None
+    return state.best_replaced(local_refine(
+        state.probes, state.modes[0], state.hypotheses[0], state.trained.model, state.setup,
+        profile=state.settings.refine.local == "profile", narrow=state.narrow,
+        scale_step=state.setup.options.scale_step(),
+        object_units=not isinstance(state.search_maps, TestMaps), features=state.features,
+        shape=state.shape, weigh=state.weigh))
+
+
+def check_half_turn(state: EstimateState) -> EstimateState:
+    """The best mode, or its half-turn where that explains the image better; a turned pose
+    keeps the found one as the next mode."""
+    if not state.hypotheses:
+        return state
+    model, hyps = state.trained.model, state.hypotheses
+    pose, turned = half_turn(hyps[0], model, state.narrow(), state.setup,
+                             correlation_weights(model, state.image),
+                             resemble=partial(gradient_similarity, model, state.image),
+                             features=state.features, shape=state.shape)
+    return state.with_hypotheses([pose, *hyps][:state.settings.max_modes] if turned
+                                 else [pose, *hyps[1:]])
+
+
+def scale_by_share(state: EstimateState) -> EstimateState:
+    """The best mode's scale where its narrow score times its share of the edges peaks."""
+    if not state.hypotheses:
+        return state
+    return state.best_replaced(share_scale(state.hypotheses[0], state.trained.model,
+                                           state.narrow(), state.setup))
+
+
+def recognise(state: EstimateState) -> EstimateState:
+    """The instance recognised and its own estimate first (models of several instances); its
+    modes refined as the estimate refines its own (``refine.fit``, ``refine.local``)."""
+    trained, options = state.trained, state.settings.recognition
+    if not state.hypotheses or len(trained.model.instance_names) <= 1:
+        return state
+    assert options is not None and state.search_maps is not None
+    maps: Any = state.search_maps
+    hyps, instance, margin = recognize(list(state.hypotheses), state.features,
+                                       trained.full_model, maps, state.narrow(), state.setup,
+                                       options, fit=state.settings.refine.fit,
+                                       local=state.settings.refine.local)
+    return replace(state.with_hypotheses(hyps), instance=instance, instance_margin=margin)
+
+
+def appearance(state: EstimateState) -> EstimateState:
+    """The best mode's box regressed (or the verified one kept), its viewpoint the nearest
+    training view's by HOG."""
+    if not state.hypotheses:
+        return state
+    options = state.settings.appearance
+    assert options is not None
+    return state.best_replaced(appearance_refine(state.hypotheses[0], state.grey(),
+                                                 state.trained.model, _appearance_model(state),
+                                                 options, verified_box=state.verified_box))
+
+
+def outline(state: EstimateState) -> EstimateState:
+    """Each mode's box from its views' outline, where the model has outlines (tighter than
+    the views' box turned)."""
+    return state.with_hypotheses([_outlined(h, state.trained) for h in state.hypotheses])
+
+
+def reject(state: EstimateState) -> EstimateState:
+    """The modes that score above ``min_score``; the best score is kept (what a rejected
+    image scored)."""
+    hyps = state.hypotheses
+    return replace(state, top_score=max((h.score for h in hyps), default=0.0),
+                   hypotheses=tuple(h for h in hyps if h.score > state.settings.min_score))
+
+
+def probabilities(state: EstimateState) -> EstimateState:
+    """Each kept mode's probability from the score profile over viewpoints."""
+    assert state.probes is not None
+    return state.with_hypotheses(with_probabilities(list(state.hypotheses), state.probes))
+
+
+def place(state: EstimateState) -> EstimateState:
+    """Each mode in the camera's frame, given a camera (``R_cam_obj``, ``t_cam_obj``)."""
+    if state.camera is None:
+        return state
+    trained = state.trained
+    return state.with_hypotheses(place_all(
+        state.hypotheses, state.camera, reference_size_px=trained.model.reference_size,
+        object_height_m=trained.object_height_m,
+        anchors=[_origin(h, trained) for h in state.hypotheses]))
+
+
+def _appearance_model(state: EstimateState) -> AppearanceModel:
+    if state.trained.appearance is None:
+        raise ValueError("the appearance stages need the appearance model learnt when the "
+                         "model is fitted; fit (or retrain) with appearance set")
+    return state.trained.appearance
+
+
+def _outlined(hypothesis: Hypothesis, trained: TrainedModel) -> Hypothesis:
+    found = outline_at(trained.model, hypothesis.azimuth, hypothesis.elevation,
+                       kappa=trained.viewpoint_kappa, k1_cutoff=K1_CUTOFF)
+    if found is None:
+        return hypothesis
+    return replace(hypothesis, box=outline_box(found, hypothesis.position, hypothesis.scale,
+                                               hypothesis.inplane))
+
+
+def _origin(hypothesis: Hypothesis, trained: TrainedModel
+            ) -> tuple[float, float, float] | None:
+    """The image of the object's origin under a hypothesis and its depth factor (None: the
+    box centre at the object's depth)."""
+    offset = origin_offset(trained.model, hypothesis.azimuth, hypothesis.elevation,
+                           kappa=trained.viewpoint_kappa, k1_cutoff=K1_CUTOFF)
+    if offset is None:
+        return None
+    u, v = hypothesis.position + hypothesis.scale * rotate_points(offset[:2],
+                                                                   hypothesis.inplane)
+    return float(u), float(v), float(offset[2])
+
+
+# -- the list of steps -------------------------------------------------------------------
+
+def _always(_: Settings) -> bool:
+    return True
+
+
+def _nothing(_: Settings) -> frozenset[str]:
+    return frozenset()
+
+
+@dataclass(frozen=True, kw_only=True)
+class Step:
+    """One step of the estimate.
+
+    Attributes
+    ----------
+    name : str
+    run : callable
+        ``EstimateState -> EstimateState``.
+    switch : str
+        The option that switches it on, as a user sets it.
+    active : callable
+        Whether the settings switch it on (it reads that option only).
+    needs : callable
+        What it needs from training (``"templates"``, ``"appearance"``) or of the
+        search (``"ranked probes"``), under the settings.
+    when : str
+        What the data must be for the step to act (else it hands the state on).
+    """
+
+    name: str
+    run: Callable[[EstimateState], EstimateState]
+    switch: str = "always"
+    active: Callable[[Settings], bool] = _always
+    needs: Callable[[Settings], frozenset[str]] = _nothing
+    when: str = ""
+
+
+VERIFY = Step(name="verify", run=verify_boxes, switch="appearance.candidates",
+              active=lambda s: s.appearance is not None and s.appearance.candidates > 0,
+              needs=lambda s: frozenset({"appearance", "ranked probes"}))
+
+#: Every step, in the order they run.
+STEPS: tuple[Step, ...] = (
+    Step(name="search", run=search),
+    Step(name="rerank by coverage", run=rerank_coverage, switch="search.rerank",
+         active=lambda s: s.search.rerank == "coverage"),
+    Step(name="rerank by template", run=rerank_template, switch="templates.rerank",
+         active=lambda s: s.templates is not None and s.templates.rerank,
+         needs=lambda s: frozenset({"templates"})),
+    VERIFY,
+    Step(name="modes", run=modes),
+    Step(name="fit", run=fit, switch="refine.fit", active=lambda s: s.refine.fit),
+    Step(name="rescale", run=rescale, switch="refine.rescale", active=lambda s: s.refine.rescale,
+         when="one instance"),
+    Step(name="local refinement", run=local, switch="refine.local",
+         active=lambda s: s.refine.local is not None,
+         needs=lambda s: frozenset({"templates"} if s.templates and s.templates.weigh else ())),
+    Step(name="half-turn", run=check_half_turn, switch="templates.half_turn",
+         active=lambda s: s.templates is not None and s.templates.half_turn,
+         needs=lambda s: frozenset({"templates"})),
+    Step(name="share scale", run=scale_by_share, switch="refine.share_scale",
+         active=lambda s: s.refine.share_scale),
+    Step(name="recognise", run=recognise, switch="recognition",
+         active=lambda s: s.recognition is not None, when="several instances"),
+    Step(name="appearance", run=appearance, switch="appearance",
+         active=lambda s: s.appearance is not None, needs=lambda s: frozenset({"appearance"})),
+    Step(name="outline", run=outline, switch="refine.outline", active=lambda s: s.refine.outline),
+    Step(name="reject", run=reject, switch="always (min_score)"),
+    Step(name="probabilities", run=probabilities),
+    Step(name="place", run=place, when="a camera"),
+)
+#: The steps that make the probes (:meth:`~posevote.PoseEstimator.probe` runs these).
+SEARCH_STEPS = ("search", "rerank by coverage", "rerank by template")
+
+
+def active_steps(settings: Settings, names: Sequence[str] | None = None) -> list[Step]:
+    """The steps the settings switch on, in order (only those of ``names``, if given)."""
+    return [s for s in STEPS if s.active(settings) and (names is None or s.name in names)]
+
+
+def artefacts(settings: Settings, steps: Sequence[Step] | None = None) -> frozenset[str]:
+    """What the steps need (:attr:`Step.needs`), those the settings switch on by default."""
+    chosen = active_steps(settings) if steps is None else steps
+    return frozenset().union(*(s.needs(settings) for s in chosen))
+
+
+def describe(settings: Settings) -> list[str]:
+    """The steps the settings run, in order, as labels: the name, the local refinement's
+    kind, and in brackets what the data must be for a step to act."""
+    out = []
+    for s in active_steps(settings):
+        label = s.name
+        if s.name == "local refinement":
+            label += f" ({settings.refine.local})"
+        out.append(label + (f" [{s.when}]" if s.when else ""))
+    return out
+
+
+# -- running them ----------------------------------------------------------------------
+
+def search_setup(settings: Settings, trained: TrainedModel) -> SearchSetup:
+    """The search's setup of a fitted model under the settings."""
+    return SearchSetup(options=settings.search, position_sigma=settings.kernel.position_sigma,
+                       edge_spacing=settings.edges.spacing,
+                       viewpoint_kappa=trained.viewpoint_kappa, use_weights=settings.weights,
+                       n_threads=settings.n_jobs)
+
+
+def begin(settings: Settings, trained: TrainedModel, image: NDArray[np.float64],
+          features: EdgeFeatures, *, steps: Sequence[Step], camera: Camera | None = None,
+          progress: Callable[[int], None] | None = None) -> EstimateState:
+    """The state before the first of ``steps``, on the image's features."""
+    setup = search_setup(settings, trained)
+    shape = (int(image.shape[0]), int(image.shape[1]))
+    return EstimateState(settings=settings, trained=trained, setup=setup,
+                         needs=artefacts(settings, steps), image=image, features=features,
+                         camera=camera, progress=progress,
+                         narrow=Built(partial(narrow_maps, features, shape, setup)),
+                         grey=Built(partial(np.asarray, image, dtype=np.float32)))
+
+
+def run(state: EstimateState, steps: Sequence[Step]) -> EstimateState:
+    """Run ``steps`` in order."""
+    for step in steps:
+        state = step.run(state)
+    return state
+
+
+def estimate(settings: Settings, trained: TrainedModel, image: NDArray[np.float64],
+             features: EdgeFeatures, *, camera: Camera | None = None,
+             start: float | None = None) -> PoseEstimate:
+    """The steps the settings switch on, run on the image's features, as a result.
+
+    ``start`` is the :func:`time.perf_counter` reading the estimate's time counts from.
+    """
+    start = time.perf_counter() if start is None else start
+    steps = active_steps(settings)
+    done = run(begin(settings, trained, image, features, steps=steps, camera=camera), steps)
+    kept = done.hypotheses
+    assert done.probes is not None
+    return PoseEstimate(found=bool(kept), best=kept[0] if kept else None, modes=kept,
+                        n_test_features=len(done.features),
+                        seconds=time.perf_counter() - start,
+                        instance=done.instance if kept else "",
+                        instance_margin=done.instance_margin, top_score=done.top_score,
+                        viewpoint_scores=scored_viewpoints(done.probes))
+
+
+def estimate_objects(settings: Settings, trained: TrainedModel, image: NDArray[np.float64],
+                     features: EdgeFeatures, max_objects: int, *,
+                     camera: Camera | None = None, start: float | None = None
+                     ) -> list[PoseEstimate]:
+    """Up to ``max_objects`` objects, best first, each found as :func:`estimate` finds one.
+
+    After each object, the edges in its box (grown by :data:`OBJECT_MARGIN`) are
+    taken away and the search runs again on the rest; a box overlapping one
+    already found (IoU over :data:`OBJECT_OVERLAP`) is not kept. Each object's time
+    counts from ``start`` for the first, from the end of the one before for the others.
+    """
+    found: list[PoseEstimate] = []
+    while len(found) < max_objects and len(features):
+        result = estimate(settings, trained, image, features, camera=camera, start=start)
+        start = None
+        if result.best is None:
+            break
+        if all(box_iou(result.best.box, f.best.box) <= OBJECT_OVERLAP for f in found if f.best):
+            found.append(result)
+        features = without_box(features, result.best.box, grow=OBJECT_MARGIN)
+    return found
