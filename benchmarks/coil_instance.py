@@ -71,7 +71,7 @@ ROWS = {
     "weights + fitting": (True, True, False, _ONE),
     "+ local refinement": (True, True, True, _ONE),
     # Beyond the paper, not run by default: features morphed between views,
-    # two probes per gap (posevote.model.morph; docs/DEFAULTS.md, "Morphing").
+    # two probes per gap (posevote.model.morph; docs/history/TUNING.md, "Morphing between training views").
     "weights + fitting + morphing": (True, True, False, _MORPH),
     "+ local refinement + morphing": (True, True, True, _MORPH),
 }

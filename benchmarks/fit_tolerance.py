@@ -1,4 +1,4 @@
-"""How much the fit's tolerance moves the estimates (docs/DEFAULTS.md, "Fit tolerance").
+"""How much the fit's tolerance moves the estimates (docs/history/TUNING.md, "Fit tolerance").
 
 On the clean COIL cross-validation (``coil_instance.py --cv``: the 18
 training views of each of the 16 objects, 3 folds, never the protocol's

@@ -562,7 +562,7 @@ def test_api_values(fitted_estimator):
     with pytest.raises(ValueError, match="SearchOptions.scale_range"):
         SearchOptions(scale_range="12")
     with pytest.raises(ValueError, match="min_score must be a finite number"):
-        PoseEstimator(min_score=float("nan"))._validate_params()
+        PoseEstimator(min_score=float("nan"))._settings()
     with pytest.raises(ValueError, match="unknown parameter 'nosuch'"):
         PoseEstimator().set_params(nosuch=1)
 

@@ -198,6 +198,10 @@ def test_presets_are_listed_and_trained_from(training_folder, tmp_path):
     for name in ("default", "cluttered", "turntable", "category"):
         assert f"\n{name} " in "\n" + result.output
     assert "chosen on:" in result.output
+    verbose = runner.invoke(cli, ["presets", "-v"]).output
+    assert "steps: search -> rerank by template -> modes -> fit -> local refinement (profile) " \
+        "-> half-turn -> share scale" in verbose
+    assert "steps: search -> verify -> modes" in verbose
     out = tmp_path / "m.npz"
     result = runner.invoke(cli, ["train", str(training_folder), "-o", str(out), "--preset",
                                  "cluttered", "--param", "search.scale_steps=5",
@@ -208,12 +212,21 @@ def test_presets_are_listed_and_trained_from(training_folder, tmp_path):
     assert header["preset"]["name"] == "cluttered"
     assert header["preset"]["overrides"]["max_modes"] == 2
     assert header["params"]["search"]["scale_steps"] == 5
+    # An extension's group switched on with its defaults, then one of its fields.
+    result = runner.invoke(cli, ["train", str(training_folder), "-o", str(out), "--param",
+                                 "templates=on", "--param", "templates.half_turn=False"])
+    assert result.exit_code == 0, result.output
+    with np.load(out) as data:
+        header = json.loads(bytes(data["header"]))
+    assert header["params"]["templates"] == {"rerank": True, "weigh": True, "half_turn": False}
+    assert "view_template" in np.load(out).files
 
 
 @pytest.mark.parametrize(("args", "message"), [
     (["--preset", "fast"], "unknown preset 'fast'"),
     (["--param", "search.sigma=1"], "unknown estimator parameter 'search.sigma'"),
     (["--param", "search=3"], "set the fields of search one by one"),
+    (["--param", "search.rerank=template"], "the template re-ranking is TemplateOptions.rerank"),
     (["--param", "search.scale_steps=0"], "SearchOptions.scale_steps must be an integer"),
     (["--param", "appearance.jitter=0.1"], "appearance is None"),
 ])

@@ -182,6 +182,21 @@ def estimate_images(model: str | Path, images: Sequence[Path], *,
         Receives one-line messages.
     scheduler : distributed.Client or str, optional
         Estimate on this Dask cluster instead of ``jobs`` local processes.
+
+    Examples
+    --------
+    >>> import tempfile, cv2
+    >>> from posevote import PoseEstimator
+    >>> from posevote.data import toy_views
+    >>> folder = Path(tempfile.mkdtemp())
+    >>> images, poses, boxes = toy_views(range(0, 360, 20))
+    >>> PoseEstimator().fit(images, poses, boxes=boxes).save(folder / "toy.npz")
+    >>> _ = cv2.imwrite(str(folder / "50.png"), (255 * toy_views([50])[0][0]).astype("uint8"))
+    >>> records = estimate_images(folder / "toy.npz", [folder / "50.png"], out=folder / "out")
+    >>> [(Path(r["image"]).name, round(r["best"]["azimuth_deg"])) for r in records]
+    [('50.png', 52)]
+    >>> sorted(p.name for p in (folder / "out").iterdir())
+    ['.lock', 'batch.json', 'estimates.csv', 'estimates.jsonl']
     """
     log = log if log is not None else (lambda message: None)
     settings = dict(settings or {})

@@ -54,6 +54,14 @@ class Camera:
         Focal lengths, pixels (positive).
     cx, cy : float
         Principal point, pixels.
+
+    Examples
+    --------
+    >>> camera = Camera(fx=500.0, fy=500.0, cx=320.0, cy=240.0)
+    >>> camera.project([0.1, 0.0, 2.0]).tolist()
+    [345.0, 240.0]
+    >>> camera.ray_point(345.0, 240.0, 2.0).tolist()
+    [0.1, 0.0, 2.0]
     """
 
     fx: float

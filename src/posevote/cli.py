@@ -105,7 +105,8 @@ def _parse_params(items: tuple[str, ...]) -> dict[str, Any]:
     import dataclasses
 
     from posevote._options import parse_setting
-    from posevote.estimator import OPTION_GROUPS, PoseEstimator
+    from posevote.estimator import PoseEstimator
+    from posevote.pipeline import OPTION_GROUPS
 
     params: dict[str, Any] = {}
     top = list(PoseEstimator().get_params(deep=False))
@@ -248,7 +249,7 @@ def train(source: Path, output: Path, layout: str, objects: str | None, cars: st
         if layout != "bop":
             height = _object_height(ts, camera_file, object_height_m)
         est = PoseEstimator.from_preset(preset, **settings)
-        est._validate_params()   # the stored n_jobs too, before the threads replace it
+        est._settings()   # checks the stored n_jobs too, before the threads replace it
         jobs = est.n_jobs
         est.set_params(n_jobs=threads)
         with _progress(len(ts), "features") as bar:

@@ -31,7 +31,7 @@ from posevote.geometry import angular_error
 #: (``benchmarks/tune_demo.py``, docs/history/TUNING.md).
 DEMO_PRESET = "cluttered"
 #: The demo's object (a key of :data:`posevote.evaluation.rendering.MESHES`):
-#: compared with the other meshes on seeds 1-3 (docs/DEFAULTS.md, "The demo's object").
+#: compared with the other meshes on seeds 1-3 (docs/history/DEFAULTS.md, "The demo's object").
 DEMO_MESH = "duck_vhacd.urdf"
 
 

@@ -53,6 +53,7 @@ from typing import Any, Generic, TypeVar
 import numpy as np
 from numpy.typing import NDArray
 
+from posevote._options import Options
 from posevote.appearance import AppearanceOptions
 from posevote.appearance.model import AppearanceModel
 from posevote.appearance.refine import appearance_refine
@@ -67,6 +68,7 @@ from posevote.inference.setup import SearchOptions, SearchSetup, search_maps
 from posevote.model.density import origin_offset
 from posevote.model.kernels import K1_CUTOFF, KernelOptions
 from posevote.model.outline import outline_at, outline_box
+from posevote.model.pruning import PruningPreset, resolve_preset
 from posevote.model.training import TrainedModel
 from posevote.recognition import RecognitionOptions
 from posevote.recognition.refine import recognize
@@ -107,13 +109,16 @@ class Built(Generic[T]):
 
 @dataclass(frozen=True, kw_only=True)
 class Settings:
-    """The estimator's parameters that the steps read (:class:`~posevote.PoseEstimator`'s)."""
+    """The estimator's parameters (:class:`~posevote.PoseEstimator`'s), checked: what the
+    steps read, and the training's own switches."""
 
     weights: bool
+    morph_views: bool
     edges: EdgeOptions
     kernel: KernelOptions
     search: SearchOptions
     refine: RefineOptions
+    prune: str | PruningPreset | None
     templates: TemplateOptions | None
     recognition: RecognitionOptions | None
     appearance: AppearanceOptions | None
@@ -121,10 +126,43 @@ class Settings:
     min_score: float
     n_jobs: int
 
+    def __post_init__(self) -> None:
+        for name in ("weights", "morph_views"):
+            if not isinstance(getattr(self, name), (bool, np.bool_)):
+                raise ValueError(f"{name} must be True or False, got {getattr(self, name)!r}")
+        resolve_preset(self.prune)
+        for f in fields(self):
+            kind, value = OPTION_GROUPS.get(f.name), getattr(self, f.name)
+            optional = f.name in OPTIONAL_GROUPS
+            if kind is not None and not (isinstance(value, kind) or (optional and value is None)):
+                raise TypeError(f"{f.name} must be a {kind.__name__}"
+                                f"{' or None' if optional else ''}, got {value!r}")
+        for name, high in (("max_modes", 100), ("n_jobs", 256)):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, np.integer)) and not isinstance(value, bool)
+                    and 1 <= value <= high):
+                raise ValueError(f"{name} must be an integer in [1, {high}], got {value!r}")
+        if not (isinstance(self.min_score, (int, float)) and np.isfinite(self.min_score)):
+            raise ValueError(f"min_score must be a finite number, got {self.min_score!r}")
+
     @classmethod
     def of(cls, params: dict[str, Any]) -> Settings:
-        """The settings among an estimator's parameters (``get_params(deep=False)``)."""
+        """The settings among an estimator's parameters (``get_params(deep=False)``).
+
+        Raises
+        ------
+        TypeError, ValueError
+            A group of the wrong type; a flag, count, threshold or pruning out of range.
+        """
         return cls(**{f.name: params[f.name] for f in fields(cls)})
+
+
+#: The option group of each grouped setting, and those that None switches off.
+OPTION_GROUPS: dict[str, type[Options]] = {
+    "edges": EdgeOptions, "kernel": KernelOptions, "search": SearchOptions,
+    "refine": RefineOptions, "templates": TemplateOptions, "recognition": RecognitionOptions,
+    "appearance": AppearanceOptions}
+OPTIONAL_GROUPS = ("templates", "recognition", "appearance")
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -533,16 +571,9 @@ def run(state: EstimateState, steps: Sequence[Step]) -> EstimateState:
     return state
 
 
-def estimate(settings: Settings, trained: TrainedModel, image: NDArray[np.float64],
-             features: EdgeFeatures, *, camera: Camera | None = None,
-             start: float | None = None) -> PoseEstimate:
-    """The steps the settings switch on, run on the image's features, as a result.
-
-    ``start`` is the :func:`time.perf_counter` reading the estimate's time counts from.
-    """
-    start = time.perf_counter() if start is None else start
-    steps = active_steps(settings)
-    done = run(begin(settings, trained, image, features, steps=steps, camera=camera), steps)
+def result(done: EstimateState, start: float) -> PoseEstimate:
+    """The estimate the steps came to; its time counts from ``start``
+    (a :func:`time.perf_counter` reading)."""
     kept = done.hypotheses
     assert done.probes is not None
     return PoseEstimate(found=bool(kept), best=kept[0] if kept else None, modes=kept,
@@ -553,24 +584,32 @@ def estimate(settings: Settings, trained: TrainedModel, image: NDArray[np.float6
                         viewpoint_scores=scored_viewpoints(done.probes))
 
 
-def estimate_objects(settings: Settings, trained: TrainedModel, image: NDArray[np.float64],
-                     features: EdgeFeatures, max_objects: int, *,
-                     camera: Camera | None = None, start: float | None = None
-                     ) -> list[PoseEstimate]:
-    """Up to ``max_objects`` objects, best first, each found as :func:`estimate` finds one.
+def check_max_objects(max_objects: int) -> None:
+    """Refuse a count of objects that is not an integer in [1, 100]."""
+    if not (isinstance(max_objects, int) and not isinstance(max_objects, bool)
+            and 1 <= max_objects <= 100):
+        raise ValueError(f"max_objects must be an integer in [1, 100], got {max_objects!r}")
+
+
+def estimate_objects(state: EstimateState, steps: Sequence[Step], max_objects: int, *,
+                     start: float) -> list[PoseEstimate]:
+    """Up to ``max_objects`` objects, best first, each found by ``steps`` from ``state``
+    (a state before the first step), on the edges the objects before left.
 
     After each object, the edges in its box (grown by :data:`OBJECT_MARGIN`) are
-    taken away and the search runs again on the rest; a box overlapping one
-    already found (IoU over :data:`OBJECT_OVERLAP`) is not kept. Each object's time
-    counts from ``start`` for the first, from the end of the one before for the others.
+    taken away and the steps run again on the rest; a box overlapping one
+    already found (IoU over :data:`OBJECT_OVERLAP`) is not kept. Each object's
+    time counts from the end of the one before (the first's from ``start``).
     """
     found: list[PoseEstimate] = []
+    features = state.features
     while len(found) < max_objects and len(features):
-        result = estimate(settings, trained, image, features, camera=camera, start=start)
-        start = None
-        if result.best is None:
+        estimate = result(run(state.with_features(features), steps), start)
+        start = time.perf_counter()
+        if estimate.best is None:
             break
-        if all(box_iou(result.best.box, f.best.box) <= OBJECT_OVERLAP for f in found if f.best):
-            found.append(result)
-        features = without_box(features, result.best.box, grow=OBJECT_MARGIN)
+        if all(box_iou(estimate.best.box, f.best.box) <= OBJECT_OVERLAP
+               for f in found if f.best):
+            found.append(estimate)
+        features = without_box(features, estimate.best.box, grow=OBJECT_MARGIN)
     return found

@@ -58,3 +58,5 @@ def test_csv_and_report_say_what_each_row_runs(tmp_path):
     text = (tmp_path / "report.md").read_text()
     assert "starts from the `cluttered` preset" in text
     assert "- **paper**: `appearance=None`" in text and "- **later**: not available" in text
+    assert "steps: search → rerank by template → modes → fit → local refinement (profile)" \
+        in text

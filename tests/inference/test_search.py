@@ -279,3 +279,19 @@ def test_a_ranking_search_on_the_sphere_goes_coarse_to_fine(synthetic_training, 
     assert not ranked.score[~near].any()
     # Unprobed viewpoints keep their boxes for the fit.
     np.testing.assert_array_equal(ranked.box, everywhere.box)
+
+
+def test_the_search_strategy_follows_what_the_search_is_for():
+    from posevote.inference.search import search_strategy
+
+    full = dict(near=False, n_viewpoints=36, n_scales=6)
+    assert search_strategy(per_scale=False, polish=True, **full) == "polish near the best"
+    assert search_strategy(per_scale=False, polish=False, **full) == "every probe"
+    assert search_strategy(per_scale=False, polish=True, **{**full, "near": True}) == \
+        "every probe"
+    assert search_strategy(per_scale=True, polish=True, **full) == "ranking"
+    assert search_strategy(per_scale=True, polish=False, **full) == "ranking"
+    assert search_strategy(per_scale=True, polish=True, **{**full, "n_scales": 3}) == \
+        "every probe"
+    assert search_strategy(per_scale=True, polish=True, **{**full, "n_viewpoints": 5}) == \
+        "every probe"

@@ -53,15 +53,10 @@ class AppearanceModel:
 JITTER_PER_IMAGE = 8
 JITTER = 0.15
 #: Azimuth ranges with a regression of their own (each fitted on the training
-#: views within one range width of its centre), and the ridge penalty. Chosen
-#: on epfl-cv (every 8th test frame; benchmarks/epfl_box_regression.py,
-#: docs/DEFAULTS.md): one regression for all views 8.34, four 8.81, eight 7.84
-#: degrees median error after the pose step; penalty 10 / 100 / 1000 left
-#: the median IoU at 0.76 / 0.78 / 0.75 (one regression, every second frame).
+#: views within one range width of its centre), the ridge penalty, and the times
+#: the regression is applied to a box: chosen on epfl-cv (docs/DEFAULTS.md).
 REGRESSION_BINS = 8
 REGRESSION_ALPHA = 100.0
-#: Times the regression is applied to a box (median IoU 0.70, 0.74, 0.76, 0.76
-#: after 0 to 3 steps on the same frames).
 REGRESSION_STEPS = 3
 _MIN_BIN_SAMPLES = 20
 

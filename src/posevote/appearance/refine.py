@@ -27,7 +27,7 @@ from posevote.results import Hypothesis
 
 #: The training views within this angle of the estimate compete for the
 #: nearest descriptor: front/back confusions are left to the edges (the
-#: nearest view of all lost 1.2 degrees of median error on epfl-cv).
+#: nearest view of all lost on epfl-cv; docs/DEFAULTS.md).
 APPEARANCE_WINDOW_DEG = 45.0
 
 

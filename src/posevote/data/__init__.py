@@ -1,6 +1,7 @@
 """Stage 0: images and pose-annotated training sets."""
 
 from posevote.data.images import as_gray_float, read_image, read_mask
+from posevote.data.toy import toy_views
 from posevote.data.training_set import (
     TrainingSet,
     object_box,
@@ -21,5 +22,6 @@ __all__ = [
     "read_image",
     "read_mask",
     "read_poses_csv",
+    "toy_views",
     "write_poses_csv",
 ]

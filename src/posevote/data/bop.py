@@ -146,6 +146,20 @@ def read_bop_scene(scene: str | Path, *, obj_id: int, min_visible: float = 0.1) 
     ------
     FileNotFoundError, ValueError
         On missing or malformed files (the message names the file and image id).
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> from posevote.data import toy_views
+    >>> from posevote.geometry import rotation_from_pose
+    >>> images, poses, boxes = toy_views([0, 90])
+    >>> folder = write_bop_scene(
+    ...     Path(tempfile.mkdtemp()) / "000001", [(255 * im).astype(np.uint8) for im in images],
+    ...     [rotation_from_pose(a, 0.0, 0.0) for a in poses], [np.array([0.0, 0.0, 1.0])] * 2,
+    ...     Camera(fx=500.0, fy=500.0, cx=64.0, cy=64.0), obj_id=1, boxes=boxes)
+    >>> scene = read_bop_scene(folder, obj_id=1)
+    >>> scene.scene_id, scene.im_ids, np.degrees(scene.training_set.poses[:, 0]).round(1).tolist()
+    (1, (0, 1), [0.0, 90.0])
     """
     folder = Path(scene)
     if not folder.is_dir():

@@ -222,7 +222,7 @@ def _read_rows(path: Path) -> list[list[str]]:
 
 
 def read_poses_csv(folder: str | Path, *, allow_outside_paths: bool = False) -> TrainingSet:
-    """Read a training set folder: images plus ``poses.csv`` (module docstring).
+    r"""Read a training set folder: images plus ``poses.csv`` (module docstring).
 
     Parameters
     ----------
@@ -246,6 +246,22 @@ def read_poses_csv(folder: str | Path, *, allow_outside_paths: bool = False) -> 
         columns, non-numeric, NaN or out-of-range values, a partial or
         non-positive box, two rows for one image, a path leading outside
         the folder, text that is not UTF-8. The message names the row.
+
+    Examples
+    --------
+    >>> import tempfile, cv2
+    >>> from posevote.data import toy_views
+    >>> folder = Path(tempfile.mkdtemp())
+    >>> images, poses, boxes = toy_views([0, 20])
+    >>> for name, image in zip(("a.png", "b.png"), images):
+    ...     _ = cv2.imwrite(str(folder / name), (255 * image).astype("uint8"))
+    >>> _ = (folder / "poses.csv").write_text(
+    ...     "image,azimuth_deg,box_x,box_y,box_w,box_h\n"
+    ...     "a.png,0,34,34,61,61\n"
+    ...     "b.png,20,33,34,64,61\n")
+    >>> training = read_poses_csv(folder)
+    >>> len(training), training.poses[:, 0].round(3).tolist()
+    (2, [0.0, 0.349])
     """
     folder = Path(folder)
     path = folder / POSES_FILE

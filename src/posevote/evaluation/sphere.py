@@ -65,8 +65,8 @@ from posevote.geometry import (
     rotation_from_pose,
 )
 
-#: Training elevations, degrees, every 7.5° (against 15°) and azimuths every 10° (against
-#: 15° and 20°): chosen on the development seeds 1-4 (docs/DEFAULTS.md).
+#: Training elevations, degrees, and the azimuths' step: chosen on the development seeds
+#: 1-4 among coarser grids (docs/DEFAULTS.md).
 ELEVATIONS_DEG = (-30.0, -22.5, -15.0, -7.5, 0.0, 7.5, 15.0, 22.5, 30.0, 37.5, 45.0, 52.5,
                   60.0)
 AZIMUTH_STEP_DEG = 10

@@ -111,7 +111,7 @@ def viewpoint_grid(model: PoseModel, *, subdivisions: int = 1, step: float | Non
 
 
 # A model's search features by viewpoint: the grid's viewpoints recur in every
-# image, and collecting them (1-2 ms) is a tenth of a viewpoint's searches.
+# image, and collecting them is a good part of a viewpoint's searches.
 _PROBE_CACHE: weakref.WeakKeyDictionary[PoseModel, dict[tuple[Any, ...], tuple[
     NDArray[Any], ...]]] = weakref.WeakKeyDictionary()
 _PROBE_CACHE_SIZE = 4096

@@ -360,8 +360,8 @@ def _polish(density, frame, train_xy, train_theta, train_w, alpha, scale, u0, v0
     vals = np.empty((3, 3))
     # The climb strides 2 pixels and compares shifts on a subset of the
     # features; then, on all of them, it climbs the 1-pixel 4-neighbours, so
-    # that the peak is one of the exact score (a fifth fewer scores than a
-    # 1-pixel climb from the vote cell, ending on peaks no lower).
+    # that the peak is one of the exact score, for fewer scores than a
+    # 1-pixel climb from the vote cell.
     step = max(1, train_w.shape[0] // _CLIMB_FEATURES)
     cache[:, :] = np.nan
     pu, pv = _climb(density, frame, train_w, px, py, obins, ofrac, cache, vals, 0, 0, step, True,
@@ -538,7 +538,7 @@ def strongest_voters(weight: NDArray[np.float64], max_voters: int | None) -> NDA
 
     The heaviest features carry most of the exact score, so their votes
     peak where it does (an even stride through the features finds fewer
-    cars: docs/METHOD-NOTES.md, "Speed").
+    cars: docs/history/METHOD-NOTES.md, "Speed").
     """
     n = len(weight)
     if max_voters is None or n <= max_voters:
@@ -587,7 +587,7 @@ def search_translations(maps: TestMaps, train_xy: NDArray[np.float64],
         more than :data:`POLISHED_STEPS` steps, those whose exact score at
         their vote cell is highest only. False keeps the exact score at its
         vote cell, a cell's width from the peak at most: enough to rank
-        probes, for a fifth of the cost.
+        probes, at a fraction of the cost.
     voters : ndarray of int, optional
         The voting features' indices, when the caller has them already:
         ``strongest_voters(w, max_voters)`` of the (subsampled) weights.

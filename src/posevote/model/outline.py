@@ -1,15 +1,13 @@
 """Each training view's outline, for the object's box under any in-plane angle.
 
 Beyond the paper. The bounding box of a view's training box turned by the
-pose's in-plane angle bounds the object loosely: at 30° it is up to a third
-wider and taller than the object's own box, and a perfect pose of the
-rendered sphere's test views (turned within ±30°) overlaps the object's box
-by a median 0.70-0.74. Where training gives masks, each view keeps the
+pose's in-plane angle bounds the object loosely: turned, a box's corners
+reach far past the object. Where training gives masks, each view keeps the
 support function of its mask's convex hull (its extent in
 :data:`OUTLINE_ANGLES` directions from the reference point, upright), and a
 pose's box is the extent of that outline turned, scaled and placed: exact
 for the hull at the sampled directions, and the mask's own box at
-in-plane 0 (a median overlap of 0.96-0.98 for the same perfect poses).
+in-plane 0.
 """
 
 from __future__ import annotations

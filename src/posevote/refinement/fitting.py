@@ -38,19 +38,14 @@ from posevote.geometry import angle_difference, rotate_points, viewing_direction
 from posevote.inference.probes import ProbeSet
 from posevote.results import Hypothesis
 
-#: Relative tolerance of the fit. scipy's default (1e-8) spends half of its
-#: evaluations moving the means by less than 0.01 degree; at 1e-4 the fit
-#: takes 10 evaluations instead of 22 and the COIL cross-validation estimates
-#: move by a median 0.003 degree (a few flat fits end at another optimum, up
-#: to 4.6 degrees away; the CV error is unchanged). Measured by
-#: benchmarks/fit_tolerance.py (docs/DEFAULTS.md).
+#: Relative tolerance of the fit: scipy's default (1e-8) spends half of its
+#: evaluations moving the means by a hundredth of a degree
+#: (benchmarks/fit_tolerance.py; docs/DEFAULTS.md).
 FIT_TOLERANCE = 1e-4
 
-#: Exponent of the viewpoint term (module docstring). On rendered turntables
-#: with the COIL protocol's geometry (benchmarks/tune_rendered.py), the
-#: median pull of the estimate toward the nearest training view is +0.8 degree
-#: with the von Mises-Fisher kernel (1.0), about 0 at 0.6 and -0.4 at 0.5;
-#: median errors 1.60 / 1.34 / 1.36 degrees.
+#: Exponent of the viewpoint term (module docstring): where the estimate's pull toward
+#: the nearest training view vanishes on rendered turntables with the COIL protocol's
+#: geometry (benchmarks/tune_rendered.py; docs/DEFAULTS.md).
 VIEW_SHAPE = 0.6
 
 #: Viewpoints within this many probe spacings of a mode take part in its fit
@@ -115,12 +110,11 @@ def peak_viewpoint(probes: ProbeSet, viewpoint: int) -> tuple[float, float] | No
     of ``viewpoint`` are fitted, by least squares, with a quadratic in the
     azimuth (times the cosine of the elevation) and the elevation without their
     cross term: along each axis, the parabola through the best view and its two
-    neighbours. On the sphere's grid of training views (10 degrees of azimuth,
-    7.5 of elevation) the isotropic peaked kernel of :func:`refine_mode`, fitted
-    over a wider neighbourhood, sets the estimate a median 1.5 degrees of
-    azimuth and 1.1 of elevation farther from the nearest training view than
-    the truth lies; the parabola does not (docs/METHOD-NOTES.md). The peak
-    stays within one spacing of the best view.
+    neighbours. On a sphere of training views the isotropic peaked kernel of
+    :func:`refine_mode`, fitted over a wider neighbourhood of views spaced
+    unevenly around the best one, pulls the estimate away from the nearest
+    training view; the parabola does not (docs/DEFAULTS.md). The peak stays
+    within one spacing of the best view.
 
     Parameters
     ----------

@@ -656,7 +656,7 @@ def rescale_mode(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps,
 
     The fit reads the scale from the search's wide-kernel scores, whose fall-off
     is slower toward small scales, so it reads a few percent short; the narrow
-    kernel's peak does not (docs/METHOD-NOTES.md). The score stays the fit's, on
+    kernel's peak does not (docs/history/METHOD-NOTES.md). The score stays the fit's, on
     which ``min_score`` and the modes' probabilities are calibrated.
 
     Parameters

@@ -4,13 +4,12 @@ The narrow score is the share of the model that the image explains. Alone
 it favours a pose whose features can lie on other edges of the object: a
 plainer side placed over a detailed one (:mod:`posevote.templates.halfturn`),
 or the right view drawn in a little, its outline onto the edges just inside
-the object's (the rendered sphere's views on black: about 1% short at the
-true viewpoint; in clutter, where the found viewpoint is a few degrees off,
-about 2%). The other direction, the share of the test edges near the object
+the object's (more so in clutter, where the found viewpoint is a few degrees
+off). The other direction, the share of the test edges near the object
 that the pose's features explain (:func:`edge_share`), leans the other way:
 a pose drawn in leaves the object's outline unexplained.
 :func:`share_scale` takes the scale where the product of the two peaks
-(with the ``cluttered`` preset; docs/DEFAULTS.md, "Scale from both
+(with the ``cluttered`` preset; docs/history/DEFAULTS.md, "Scale from both
 directions", has the measurements).
 """
 

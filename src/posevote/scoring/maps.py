@@ -307,7 +307,7 @@ def _refine(coarse: NDArray[np.float32], k: int, shape: tuple[int, int]) -> NDAr
     """A coarse grid interpolated back to the pixels (block ``i`` at pixel ``k i + (k - 1) / 2``).
 
     Bilinear, as the kernels then read the maps: a third of bicubic's cost,
-    and as accurate on epfl-cv, epfl-single and COIL (docs/METHOD-NOTES.md).
+    and as accurate on epfl-cv, epfl-single and COIL (docs/history/METHOD-NOTES.md).
     """
     hs, ws = coarse.shape
     fine = cv2.resize(coarse, (ws * k, hs * k), interpolation=cv2.INTER_LINEAR)
@@ -334,10 +334,10 @@ def blurred_points(xy: NDArray[np.float64], values: NDArray[np.float64], shape: 
     Narrow kernels (``sigma < 2 MIN_SMOOTH_CELLS``) blur the points rounded
     to their pixels. Wider ones splat the points bilinearly on a grid of
     ``k x k`` blocks (which keeps their centroid) and blur at ``sigma / k``:
-    the cost of a few taps instead of ``6 sigma``, and read bilinearly
-    within about 8% of the exact sum of Gaussians at its peak and, from a
-    4-pixel kernel on, closer to it than the points rounded to their
-    pixels. Outside the image the plane is 0.
+    the cost of a few taps instead of ``6 sigma``, and read bilinearly close
+    to the exact sum of Gaussians and, from a 4-pixel kernel on, closer to it
+    than the points rounded to their pixels (``tests/scoring/test_maps.py``).
+    Outside the image the plane is 0.
 
     Parameters
     ----------

@@ -102,7 +102,7 @@ def gather_score(density, frame, train_xy, train_theta, train_w, alpha, scale, t
         fb = np.floor(f)
         ft = f - fb
         # fb lies in [-1, n_bins - 1]: wrapped by a comparison, not an integer division
-        # (a fifth of the search's exact scores).
+        # (which cost the search's exact scores dearly).
         b0 = int(fb)
         if b0 < 0:
             b0 += n_bins

@@ -6,8 +6,7 @@ detailed face) its edges are nearly a subset of the other side's. The
 narrow score is the share of the model that the image explains, so the
 plainer side placed over the other explains itself as fully as the right
 pose does, and a search over a range of scales also finds the size where
-its outline fits (the rendered sphere's r2d2: its back at about 0.85 of the
-scale of its face). What tells them apart is the other direction: the share
+its outline fits (a back framed larger than the face). What tells them apart is the other direction: the share
 of the test edges inside the two poses' outlines that each pose's features
 explain (:func:`~posevote.refinement.share.edge_share`).
 

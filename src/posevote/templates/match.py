@@ -38,7 +38,7 @@ from posevote.results import Hypothesis
 from posevote.templates.model import TEMPLATE_BLUR, in_template, template_frame
 
 #: Probes re-ranked at least; beyond them, every probe whose edge score beats the
-#: best product (docs/DEFAULTS.md, "Template re-ranking").
+#: best product (docs/history/DEFAULTS.md, "Template re-ranking").
 TEMPLATE_CANDIDATES = 300
 #: Tiles across the mask's box, the share of them kept (the best ones), and
 #: the fewest template pixels a tile needs to count.
