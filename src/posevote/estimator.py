@@ -150,13 +150,13 @@ class PoseEstimator(GroupedParams):
         >>> PoseEstimator().fit(images, poses, boxes=boxes).model_.n_views
         18
         """
-        needs = pipeline.artefacts(self._settings())
         self._set_trained(train_model(
             images, poses, boxes=boxes, masks=masks, instances=instances, category=category,
             edges=self.edges, kernel=self.kernel, morph=self.morph_views,
-            prune=resolve_preset(self.prune), appearance="appearance" in needs,
-            templates="templates" in needs, progress=progress, channels=channels,
-            object_height_m=object_height_m, origins=origins, n_threads=self.n_jobs))
+            prune=resolve_preset(self.prune),
+            collect=pipeline.collectors(pipeline.artefacts(self._settings())), progress=progress,
+            channels=channels, object_height_m=object_height_m, origins=origins,
+            n_threads=self.n_jobs))
         return self
 
     def partial_fit(self, images: Sequence[ImageLike], poses: ArrayLike, *,
@@ -175,10 +175,11 @@ class PoseEstimator(GroupedParams):
         >>> est.partial_fit(images[1::2], poses[1::2], boxes=boxes[1::2]).model_.n_views
         18
         """
-        self._settings()
-        self._set_trained(extend_model(self._trained(), images, poses, boxes=boxes, masks=masks,
+        trained, _ = self._trained(), self._settings()
+        self._set_trained(extend_model(trained, images, poses, boxes=boxes, masks=masks,
                                        instances=instances, edges=self.edges, kernel=self.kernel,
                                        prune=resolve_preset(self.prune), progress=progress,
+                                       collect=pipeline.collectors(pipeline.held(trained)),
                                        channels=channels, origins=origins))
         return self
 

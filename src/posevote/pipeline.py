@@ -55,7 +55,7 @@ from numpy.typing import NDArray
 
 from posevote._options import Options
 from posevote.appearance import AppearanceOptions
-from posevote.appearance.model import AppearanceModel
+from posevote.appearance.model import AppearanceCollector
 from posevote.appearance.refine import appearance_refine
 from posevote.appearance.verify import verify
 from posevote.camera import Camera, place_all
@@ -69,7 +69,7 @@ from posevote.model.density import origin_offset
 from posevote.model.kernels import K1_CUTOFF, KernelOptions
 from posevote.model.outline import outline_at, outline_box
 from posevote.model.pruning import PruningPreset, resolve_preset
-from posevote.model.training import TrainedModel
+from posevote.model.training import AppearanceModel, CollectorFactory, TrainedModel
 from posevote.recognition import RecognitionOptions
 from posevote.recognition.refine import recognize
 from posevote.refinement import RefineOptions
@@ -83,6 +83,7 @@ from posevote.scoring.score import narrow_maps
 from posevote.templates import TemplateOptions
 from posevote.templates.halfturn import half_turn
 from posevote.templates.match import correlation_weights, gradient_similarity, rerank_by_template
+from posevote.templates.model import TemplateCollector
 
 #: Several objects in one image: a box overlapping one already found by more
 #: than this IoU is the same object found again.
@@ -527,6 +528,23 @@ def artefacts(settings: Settings, steps: Sequence[Step] | None = None) -> frozen
     """What the steps need (:attr:`Step.needs`), those the settings switch on by default."""
     chosen = active_steps(settings) if steps is None else steps
     return frozenset().union(*(s.needs(settings) for s in chosen))
+
+
+#: What learns each thing a step needs from training.
+COLLECTORS: dict[str, CollectorFactory] = {"templates": TemplateCollector,
+                                           "appearance": AppearanceCollector}
+
+
+def collectors(needs: frozenset[str]) -> list[CollectorFactory]:
+    """The view collectors that learn what the steps need (:func:`artefacts`)."""
+    return [COLLECTORS[name] for name in sorted(needs) if name in COLLECTORS]
+
+
+def held(trained: TrainedModel) -> frozenset[str]:
+    """What a fitted model holds besides its edges, which a partial fit learns for the new
+    views too."""
+    found = {"templates"} if trained.full_model.view_template is not None else set()
+    return frozenset(found | ({"appearance"} if trained.appearance is not None else set()))
 
 
 def describe(settings: Settings) -> list[str]:

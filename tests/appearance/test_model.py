@@ -114,7 +114,7 @@ def test_collector_learns_descriptors_classifier_and_regression(placed):
     boxes = np.array([b for _, b in scenes])
     collector = AppearanceCollector(boxes)
     for (img, box), a in zip(scenes, az, strict=True):
-        collector.add(img, box, float(a))
+        collector.describe(img, box, float(a))
     model = collector.finish(boxes[:, 2:])
     assert model.descriptors.shape == (len(az), descriptor_length(model.window))
     assert model.objectness is not None and model.objectness.shape == (model.descriptors.shape[1] + 1,)

@@ -7,9 +7,8 @@ import json
 import numpy as np
 import pytest
 
-from posevote.appearance.model import AppearanceModel
 from posevote.model.modelfile import FORMAT_VERSION, OLDEST_VERSION, load_model, save_model
-from posevote.model.training import TrainedModel
+from posevote.model.training import AppearanceModel, TrainedModel
 
 
 def _trained(model, **kw):

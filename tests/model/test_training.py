@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from posevote.appearance.model import AppearanceCollector
 from posevote.model.pruning import PRESETS
 from posevote.model.training import train_model
 from posevote.templates import TemplateOptions
@@ -60,8 +61,9 @@ def test_masks_instances_and_pruning(synthetic_training):
 def test_threads_train_the_same_model(synthetic_training):
     images, az, boxes = synthetic_training
     instances = ["a"] * 9 + ["b"] * 9
-    one = train_model(images, az, boxes=boxes, instances=instances, appearance=True)
-    two = train_model(images, az, boxes=boxes, instances=instances, appearance=True, n_threads=3)
+    one = train_model(images, az, boxes=boxes, instances=instances, collect=[AppearanceCollector])
+    two = train_model(images, az, boxes=boxes, instances=instances,
+                      collect=[AppearanceCollector], n_threads=3)
     for a, b in ((one.model, two.model), (one.full_model, two.full_model)):
         np.testing.assert_array_equal(a.xy, b.xy)
         np.testing.assert_array_equal(a.weight, b.weight)
@@ -88,8 +90,8 @@ def test_appearance_descriptors_from_boxes_or_masks_agree(synthetic_training):
     mask_boxes = np.array([[np.nonzero(m)[1].min(), np.nonzero(m)[0].min(),
                             np.ptp(np.nonzero(m)[1]) + 1, np.ptp(np.nonzero(m)[0]) + 1]
                            for m in masks], dtype=float)
-    a = train_model(images, az, boxes=mask_boxes, appearance=True).appearance
-    b = train_model(images, az, masks=masks, appearance=True).appearance
+    a = train_model(images, az, boxes=mask_boxes, collect=[AppearanceCollector]).appearance
+    b = train_model(images, az, masks=masks, collect=[AppearanceCollector]).appearance
     assert a is not None and b is not None and a.window == b.window
     np.testing.assert_array_equal(a.descriptors, b.descriptors)
     assert (a.objectness is None) == (b.objectness is None)

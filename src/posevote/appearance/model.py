@@ -15,7 +15,6 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
@@ -23,29 +22,8 @@ from numpy.typing import NDArray
 from posevote.appearance.descriptors import box_descriptor, crop_box, window_shape
 from posevote.features.hog import descriptor_length
 from posevote.geometry import box_iou
-
-
-@dataclass(frozen=True, kw_only=True, eq=False)
-class AppearanceModel:
-    """What the appearance stages learn from the training views.
-
-    Attributes
-    ----------
-    window : (int, int)
-        Descriptor window (:func:`~posevote.appearance.descriptors.window_shape`).
-    descriptors : ndarray of float32, shape (K, D)
-        One descriptor per training view (zeros where its box is too small).
-    objectness : ndarray, shape (D + 1,), or None
-        The object/background classifier (:func:`train_objectness`).
-    regressor : ndarray, shape (B, 4, D + 1), or None
-        The box regressions (:func:`train_box_regression`).
-    """
-
-    window: tuple[int, int]
-    descriptors: NDArray[np.float32]
-    objectness: NDArray[np.float64] | None
-    regressor: NDArray[np.float64] | None
-
+from posevote.model.density import PoseModel
+from posevote.model.training import AppearanceModel
 
 #: Jittered boxes per training image for the box regression, and their spread:
 #: centre shifts up to this fraction of the box size, log-size changes up to
@@ -185,7 +163,8 @@ def train_box_regression(descriptors: NDArray[np.float32], offsets: NDArray[np.f
 
 
 class AppearanceCollector:
-    """Gathers the training images' descriptors while ``fit`` reads them, one image at a time.
+    """Gathers the training images' descriptors while ``fit`` reads them, one image at a time
+    (a :class:`~posevote.model.training.ViewCollector`).
 
     With the descriptor window known from the start (every box given), each
     image's descriptors are computed at once; otherwise (boxes from masks or
@@ -212,7 +191,30 @@ class AppearanceCollector:
             return box_descriptor(image, box, self.window)
         return crop_box(image, box).astype(np.float32)
 
-    def add(self, image: NDArray[np.floating], box: Sequence[float], azimuth: float) -> None:
+    def read(self, image: NDArray[np.float64], box: NDArray[np.float64],
+             mask: NDArray[np.bool_] | None, pose: NDArray[np.float64]) -> NDArray[np.float32]:
+        """The image in single precision, which the descriptors read (in the reading thread)."""
+        return image.astype(np.float32)
+
+    def add(self, index: int, read: NDArray[np.float32], box: NDArray[np.float64],
+            pose: NDArray[np.float64]) -> None:
+        """:meth:`describe` the image read, in the images' order (the boxes are drawn at random)."""
+        self.describe(read, box.tolist(), float(pose[0]))
+
+    def with_earlier(self, full: PoseModel, size: NDArray[np.float64]) -> None:
+        """Refused: the classifier and the regressions are trained on every image's crops."""
+        raise ValueError("the appearance model is learnt from every training image: fit it "
+                         "again on all the images")
+
+    def onto_model(self, model: PoseModel, scales: NDArray[np.float64]) -> PoseModel:
+        """The model as it is (the appearance model is kept apart)."""
+        return model
+
+    def learnt(self, sizes: NDArray[np.float64], n_threads: int) -> dict[str, AppearanceModel]:
+        """``{"appearance": ...}``: :meth:`finish`."""
+        return {"appearance": self.finish(sizes, n_threads)}
+
+    def describe(self, image: NDArray[np.floating], box: Sequence[float], azimuth: float) -> None:
         """Describe one training image's box, some background boxes and jittered boxes of it."""
         self.views.append(self._describe(image, box))
         self.backgrounds += [self._describe(image, b)

@@ -19,10 +19,10 @@ from numpy.typing import NDArray
 
 from posevote.appearance import AppearanceOptions
 from posevote.appearance.descriptors import box_descriptor
-from posevote.appearance.model import AppearanceModel
 from posevote.appearance.verify import jittered_nearest_view, nearest_view, regress_described
 from posevote.geometry import box_centre, viewing_direction
 from posevote.model.density import PoseModel
+from posevote.model.training import AppearanceModel
 from posevote.results import Hypothesis
 
 #: The training views within this angle of the estimate compete for the

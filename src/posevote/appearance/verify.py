@@ -22,13 +22,14 @@ from numpy.typing import NDArray
 
 from posevote.appearance import AppearanceOptions
 from posevote.appearance.descriptors import box_descriptor
-from posevote.appearance.model import REGRESSION_STEPS, AppearanceModel, shift_box
+from posevote.appearance.model import REGRESSION_STEPS, shift_box
 from posevote.features.edges import EdgeFeatures
 from posevote.geometry import box_centre, viewing_direction
 from posevote.inference.probes import ProbeSet, probe_spacing
 from posevote.inference.search import near_scales, probe
 from posevote.inference.setup import SearchSetup
 from posevote.model.density import PoseModel
+from posevote.model.training import AppearanceModel
 from posevote.results import Hypothesis
 from posevote.scoring.maps import TestMaps, restrict_maps
 

@@ -37,12 +37,11 @@ from typing import Any
 import numpy as np
 
 from posevote._io import atomic_open
-from posevote.appearance.model import AppearanceModel
 from posevote.camera import check_object_height
 from posevote.features.hog import descriptor_length
 from posevote.model.density import PoseModel
 from posevote.model.outline import OUTLINE_ANGLES
-from posevote.model.training import TrainedModel
+from posevote.model.training import AppearanceModel, TrainedModel
 
 FORMAT_NAME = "posevote-model"
 FORMAT_VERSION = 6

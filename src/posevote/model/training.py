@@ -1,12 +1,12 @@
 """Training (Sec. II-A, II-C, III-A): pose-annotated images to a weighted, optionally pruned model.
 
 :func:`train_model` reads each training image once: its edges inside the
-object's box (and mask), its grey template when the template re-ranking is
-wanted (:mod:`posevote.templates.model`), its appearance descriptors when
-the appearance stages are, and its crop for the morphing between
-neighbouring views;
-then it builds psi (:func:`posevote.model.density.build_model`), weighs the
-features (Eq. 4) and prunes the pooled model (Sec. III-A).
+object's box (and mask), its crop for the morphing between neighbouring
+views, and whatever the estimate's steps ask for besides (the templates'
+grey levels, the appearance steps' descriptors), learnt by the
+:class:`ViewCollector` each extension hands in; then it builds psi
+(:func:`posevote.model.density.build_model`), weighs the features (Eq. 4)
+and prunes the pooled model (Sec. III-A).
 """
 
 from __future__ import annotations
@@ -14,14 +14,13 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from posevote._parallel import thread_map
-from posevote.appearance.model import AppearanceCollector, AppearanceModel
 from posevote.camera import check_object_height
 from posevote.data.images import load_image, read_mask
 from posevote.features.edges import (
@@ -38,7 +37,57 @@ from posevote.model.morph import ViewCrops, view_neighbours, view_shifts
 from posevote.model.outline import OUTLINE_ANGLES, box_outline, mask_outline
 from posevote.model.pruning import PruningPreset, prune_model
 from posevote.model.weights import feature_weights
-from posevote.templates.model import TEMPLATE_SIDE, view_template
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class AppearanceModel:
+    """What the appearance steps learn from the training views
+    (:class:`posevote.appearance.model.AppearanceCollector`).
+
+    Attributes
+    ----------
+    window : (int, int)
+        Descriptor window (:func:`~posevote.appearance.descriptors.window_shape`).
+    descriptors : ndarray of float32, shape (K, D)
+        One descriptor per training view (zeros where its box is too small).
+    objectness : ndarray, shape (D + 1,), or None
+        The object/background classifier.
+    regressor : ndarray, shape (B, 4, D + 1), or None
+        The box regressions.
+    """
+
+    window: tuple[int, int]
+    descriptors: NDArray[np.float32]
+    objectness: NDArray[np.float64] | None
+    regressor: NDArray[np.float64] | None
+
+
+class ViewCollector(Protocol):
+    """What an extension learns from the training views besides their edges.
+
+    An extension's factory, called with the training boxes (K, 4), gives one
+    for a fit. :meth:`read` runs in the threads that read the images,
+    :meth:`add` in the images' order (what draws random numbers), then
+    :meth:`onto_model` lays per-view arrays on the model before it is weighed
+    and pruned, and :meth:`learnt` returns the :class:`TrainedModel` fields
+    the extension fills.
+    """
+
+    def read(self, image: NDArray[np.float64], box: NDArray[np.float64],
+             mask: NDArray[np.bool_] | None, pose: NDArray[np.float64]) -> Any: ...
+
+    def add(self, index: int, read: Any, box: NDArray[np.float64],
+            pose: NDArray[np.float64]) -> None: ...
+
+    def with_earlier(self, full: PoseModel, size: NDArray[np.float64]) -> None: ...
+
+    def onto_model(self, model: PoseModel, scales: NDArray[np.float64]) -> PoseModel: ...
+
+    def learnt(self, sizes: NDArray[np.float64], n_threads: int) -> dict[str, Any]: ...
+
+
+#: Makes an extension's :class:`ViewCollector` from the training boxes.
+CollectorFactory = Callable[[NDArray[np.float64]], ViewCollector]
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -159,7 +208,7 @@ def train_model(images: Sequence[str | Path | NDArray], poses: ArrayLike, *,
                 instances: Sequence[str] | None = None, category: str = "",
                 edges: EdgeOptions = EdgeOptions(), kernel: KernelOptions = KernelOptions(),
                 morph: bool = False, prune: PruningPreset | None = None,
-                appearance: bool = False, templates: bool = False,
+                collect: Sequence[CollectorFactory] = (),
                 progress: Callable[[int], None] | None = None,
                 channels: str = "rgb", object_height_m: float | None = None,
                 origins: ArrayLike | None = None, n_threads: int = 1) -> TrainedModel:
@@ -177,10 +226,9 @@ def train_model(images: Sequence[str | Path | NDArray], poses: ArrayLike, *,
         Measure the features' motion between neighbouring views.
     prune : PruningPreset or None
         Prune the pooled model with these knobs.
-    appearance : bool
-        Learn the appearance model (descriptors, classifier, box regressions).
-    templates : bool
-        Keep each view's grey template (the template re-ranking's).
+    collect : sequence of callable
+        What the estimate's steps ask for besides the edges: each factory's
+        :class:`ViewCollector` learns it from the views.
     n_threads : int, optional
         Threads reading the images and weighing the instances' features: the
         time of training, not its result.
@@ -195,8 +243,8 @@ def train_model(images: Sequence[str | Path | NDArray], poses: ArrayLike, *,
                         f"path {str(images)!r} (read a training folder with read_poses_csv)")
     images = list(images)
     views = _extract(images, poses, boxes, masks, instances, edges=edges, morph=morph,
-                     appearance=appearance, templates=templates, progress=progress,
-                     channels=channels, n_threads=n_threads, origins=origins)
+                     collect=collect, progress=progress, channels=channels,
+                     n_threads=n_threads, origins=origins)
     return _pool(views, category=category, kernel=kernel, prune=prune, height=height,
                  n_threads=n_threads)
 
@@ -210,17 +258,15 @@ class _Views:
     sizes: NDArray[np.float64]
     poses: NDArray[np.float64]
     names: list[str]
-    collector: AppearanceCollector | None = None
+    collectors: Sequence[ViewCollector] = ()
     crops: ViewCrops | None = None
     origins: NDArray[np.float64] | None = None
-    templates: NDArray[np.float16] | None = None
-    template_cells: NDArray[np.float64] | None = None
     outlines: NDArray[np.float64] | None = None
 
 
 def _extract(images: list[Any], poses: ArrayLike, boxes: ArrayLike | None,
              masks: Sequence[Any] | None, instances: Sequence[str] | None, *,
-             edges: EdgeOptions, morph: bool, appearance: bool, templates: bool,
+             edges: EdgeOptions, morph: bool, collect: Sequence[CollectorFactory],
              progress: Callable[[int], None] | None, channels: str, n_threads: int = 1,
              origins: ArrayLike | None = None) -> _Views:
     """Each image's edges inside its box (and mask), box and pose (``n_threads`` images at a time)."""
@@ -228,18 +274,14 @@ def _extract(images: list[Any], poses: ArrayLike, boxes: ArrayLike | None,
     k = len(images)
     origin_arr = None if origins is None else _check_origins(origins, k)
     feats, centres, sizes = [], np.zeros((k, 2)), np.zeros((k, 2))
-    template_arr = np.empty((k, TEMPLATE_SIDE, TEMPLATE_SIDE), dtype=np.float16) \
-        if templates else None
-    cells = np.zeros(k)
     outlines, masked = np.zeros((k, OUTLINE_ANGLES)), False
-    collector = AppearanceCollector(box_arr) if appearance else None
+    collectors = [make(box_arr) for make in collect]
     crops = ViewCrops() if morph else None
 
-    def read(i: int) -> tuple[NDArray[np.float64], NDArray[np.floating], NDArray[np.float64],
-                              EdgeFeatures, tuple[NDArray[np.float16], float] | None,
-                              NDArray[np.float64] | None]:
-        """Image ``i``, its box, its edges inside the box (and mask), its template and its
-        mask's outline."""
+    def read(i: int) -> tuple[NDArray[np.float64], NDArray[np.float64], EdgeFeatures,
+                              list[Any], NDArray[np.float64] | None]:
+        """Image ``i``, its box, its edges inside the box (and mask), what each collector
+        reads of it, and its mask's outline."""
         image = images[i]
         label = str(image) if isinstance(image, (str, Path)) else f"images[{i}]"
         img = load_image(image, name=label, channels=channels)
@@ -256,22 +298,17 @@ def _extract(images: list[Any], poses: ArrayLike, boxes: ArrayLike | None,
             raise ValueError(f"{label}: no edges found on the object; check the box/mask "
                              "or lower EdgeOptions.thresholds")
         inside = None if mask is None else mask & box_mask(img.shape, box)
-        # The descriptors read single-precision crops: converted once, in the thread.
-        return (img, img.astype(np.float32) if appearance else img, box, f,
-                view_template(img, box, mask, float(pose_arr[i, 2])) if templates else None,
+        return (img, box, f, [c.read(img, box, mask, pose_arr[i]) for c in collectors],
                 mask_outline(inside, box_centre(box), float(pose_arr[i, 2]))
                 if inside is not None and inside.any() else None)
 
     # Images are read in threads; what draws random boxes runs here, in order.
-    for i, (img, img32, box, f, template, outline) in enumerate(thread_map(read, range(k),
-                                                                          n_threads)):
+    for i, (img, box, f, reads, outline) in enumerate(thread_map(read, range(k), n_threads)):
         feats.append(f)
         outlines[i] = box_outline(box[2:]) if outline is None else outline
         masked |= outline is not None
-        if template_arr is not None and template is not None:
-            template_arr[i], cells[i] = template
-        if collector is not None:
-            collector.add(img32, box.tolist(), float(pose_arr[i, 0]))
+        for collector, item in zip(collectors, reads, strict=True):
+            collector.add(i, item, box, pose_arr[i])
         if crops is not None:
             crops.add(img, box)
         centres[i] = box_centre(box)
@@ -279,8 +316,7 @@ def _extract(images: list[Any], poses: ArrayLike, boxes: ArrayLike | None,
         if progress is not None:
             progress(1)
     return _Views(feats=feats, centres=centres, sizes=sizes, poses=pose_arr, names=names,
-                  collector=collector, crops=crops, origins=origin_arr, templates=template_arr,
-                  template_cells=None if template_arr is None else cells,
+                  collectors=collectors, crops=crops, origins=origin_arr,
                   outlines=outlines if masked else None)
 
 
@@ -309,7 +345,7 @@ def _pool(views: _Views, *, category: str, kernel: KernelOptions, prune: Pruning
     """psi from the views (Sec. II-A), the weights (Eq. 4) and the pruning (Sec. III-A)."""
     feats, centres, sizes, pose_arr, names = (views.feats, views.centres, views.sizes,
                                               views.poses, views.names)
-    collector, crops = views.collector, views.crops
+    crops = views.crops
     instance_names = sorted(set(names))
     inst_index = np.array([instance_names.index(n) for n in names])
     # Each instance keeps its own typical size; instances are brought to the
@@ -331,10 +367,8 @@ def _pool(views: _Views, *, category: str, kernel: KernelOptions, prune: Pruning
             scale=float(scales[k]), inplane=float(pose_arr[k, 2])).xy
             for k in range(len(feats))])
         model = replace(model, view_origin=np.hstack([offsets, views.origins[:, 2:]]))
-    if views.templates is not None and views.template_cells is not None:
-        # Template pixels in reference pixels, as the features.
-        model = replace(model, view_template=views.templates,
-                        view_template_cell=views.template_cells / scales)
+    for collector in views.collectors:
+        model = collector.onto_model(model, scales)
     if views.outlines is not None:
         model = replace(model, view_outline=views.outlines / scales[:, None])
     if crops is not None:
@@ -349,10 +383,12 @@ def _pool(views: _Views, *, category: str, kernel: KernelOptions, prune: Pruning
     full = model.with_weights(weights)
     searched = full if prune is None else prune_model(
         full, prune, position_sigma=kernel.position_sigma, orientation_kappa=ORIENTATION_KAPPA)
+    learnt: dict[str, Any] = {}
+    for collector in views.collectors:
+        learnt.update(collector.learnt(sizes, n_threads))
     return TrainedModel(model=searched, full_model=full, viewpoint_kappa=kappa,
-                        appearance=None if collector is None
-                        else collector.finish(sizes, n_threads),
-                        pruning=None if prune is None else asdict(prune), object_height_m=height)
+                        pruning=None if prune is None else asdict(prune), object_height_m=height,
+                        **learnt)
 
 
 def _outlines(full: PoseModel, size: NDArray[np.float64], new: _Views
@@ -372,6 +408,7 @@ def extend_model(trained: TrainedModel, images: Sequence[str | Path | NDArray], 
                  *, boxes: ArrayLike | None = None, masks: Sequence[Any] | None = None,
                  instances: Sequence[str] | None = None, edges: EdgeOptions = EdgeOptions(),
                  kernel: KernelOptions = KernelOptions(), prune: PruningPreset | None = None,
+                 collect: Sequence[CollectorFactory] = (),
                  progress: Callable[[int], None] | None = None,
                  channels: str = "rgb", origins: ArrayLike | None = None) -> TrainedModel:
     """The model of ``trained``'s views and the new ones: what a training on all of them gives.
@@ -384,7 +421,9 @@ def extend_model(trained: TrainedModel, images: Sequence[str | Path | NDArray], 
     other view) and the pruning. The appearance model (its classifier and box
     regressions are trained on crops of every image) and the morphing (its
     flow between neighbouring views) need the old images, so such a model
-    must be trained again on all of them.
+    must be trained again on all of them. ``collect`` learns the new views'
+    share of what the model holds besides the edges (its templates), each
+    collector taking the earlier views' share from the model.
 
     Raises
     ------
@@ -409,8 +448,7 @@ def extend_model(trained: TrainedModel, images: Sequence[str | Path | NDArray], 
         raise TypeError(f"images must be a sequence of image paths or arrays, got the single "
                         f"path {str(images)!r}")
     new = _extract(list(images), poses, boxes, masks, instances, edges=edges, morph=False,
-                   appearance=False, templates=full.view_template is not None,
-                   progress=progress, channels=channels, origins=origins)
+                   collect=collect, progress=progress, channels=channels, origins=origins)
     size = np.asarray(full.instance_size or [1.0] * len(full.instance_names), dtype=np.float64)
     old_feats = []
     for k in range(full.n_views):
@@ -420,6 +458,8 @@ def extend_model(trained: TrainedModel, images: Sequence[str | Path | NDArray], 
     old_sizes = full.view_box * size[full.view_instance][:, None]
     old_poses = np.column_stack([full.view_azimuth, full.view_elevation,
                                  np.zeros(full.n_views)])
+    for collector in new.collectors:
+        collector.with_earlier(full, size)
     views = _Views(feats=old_feats + new.feats,
                    centres=np.vstack([np.zeros((full.n_views, 2)), new.centres]),
                    sizes=np.vstack([old_sizes, new.sizes]),
@@ -428,11 +468,6 @@ def extend_model(trained: TrainedModel, images: Sequence[str | Path | NDArray], 
                    origins=None if full.view_origin is None or new.origins is None else np.vstack(
                        [np.hstack([full.view_origin[:, :2] * size[full.view_instance][:, None],
                                    full.view_origin[:, 2:]]), new.origins]),
-                   templates=None if full.view_template is None or new.templates is None
-                   else np.concatenate([full.view_template, new.templates]),
-                   template_cells=None if full.view_template_cell is None
-                   or new.template_cells is None else np.concatenate(
-                       [full.view_template_cell * size[full.view_instance], new.template_cells]),
-                   outlines=_outlines(full, size, new))
+                   collectors=new.collectors, outlines=_outlines(full, size, new))
     return _pool(views, category=full.category, kernel=kernel, prune=prune,
                  height=trained.object_height_m)

@@ -11,12 +11,15 @@ compares the test image with it under each of the search's best probes.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from posevote.features.edges import box_mask
 from posevote.geometry import box_centre
+from posevote.model.density import PoseModel
 
 #: Template side, pixels: the view's box diagonal fits across it, so that any
 #: in-plane angle of the box stays inside.
@@ -89,3 +92,41 @@ def view_template(image: NDArray[np.floating], box: NDArray[np.float64],
                             flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
                             borderMode=cv2.BORDER_CONSTANT, borderValue=0.0) > 0.99
     return np.where(inside, grey, np.nan).astype(np.float16), cell
+
+
+class TemplateCollector:
+    """Keeps each training view's template while ``fit`` reads the views (a
+    :class:`~posevote.model.training.ViewCollector`): the model's ``view_template``
+    and ``view_template_cell``."""
+
+    def __init__(self, boxes: NDArray[np.float64]) -> None:
+        k = len(boxes)
+        self.templates = np.empty((k, TEMPLATE_SIDE, TEMPLATE_SIDE), dtype=np.float16)
+        self.cells = np.zeros(k)
+
+    def read(self, image: NDArray[np.float64], box: NDArray[np.float64],
+             mask: NDArray[np.bool_] | None, pose: NDArray[np.float64]
+             ) -> tuple[NDArray[np.float16], float]:
+        """The view's template and its cell (:func:`view_template`), in the reading thread."""
+        return view_template(image, box, mask, float(pose[2]))
+
+    def add(self, index: int, read: tuple[NDArray[np.float16], float], box: NDArray[np.float64],
+            pose: NDArray[np.float64]) -> None:
+        self.templates[index], self.cells[index] = read
+
+    def with_earlier(self, full: PoseModel, size: NDArray[np.float64]) -> None:
+        """The templates of the views ``full`` learnt first, their cells at each view's
+        training size (``size`` per instance)."""
+        if full.view_template is None or full.view_template_cell is None:
+            raise ValueError("the model holds no templates to extend")
+        self.templates = np.concatenate([full.view_template, self.templates])
+        self.cells = np.concatenate([full.view_template_cell * size[full.view_instance],
+                                     self.cells])
+
+    def onto_model(self, model: PoseModel, scales: NDArray[np.float64]) -> PoseModel:
+        """The model with the templates, their cells in reference pixels (as the features)."""
+        return replace(model, view_template=self.templates, view_template_cell=self.cells / scales)
+
+    def learnt(self, sizes: NDArray[np.float64], n_threads: int) -> dict[str, object]:
+        """Nothing apart from the model."""
+        return {}
