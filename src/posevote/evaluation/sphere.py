@@ -56,6 +56,7 @@ from posevote.camera import (
 from posevote.estimator import PoseEstimator
 from posevote.evaluation.metrics import FLIP_DEG, summarize_errors
 from posevote.evaluation.rendering import MESHES, RenderedView, render_focal, render_turntable
+from posevote.evaluation.report import row_steps
 from posevote.evaluation.synthetic import PastedView, paste_on_clutter
 from posevote.geometry import (
     box_centre,
@@ -266,6 +267,7 @@ def report_text(setup: SphereSetup, summary: dict[str, Any], n_views: int) -> st
             ", overrides "
             f"{dict(setup.params) or 'none'}{told}; seed {setup.seed}. The translation error is "
             "`t_cam_obj`'s distance from the mesh origin (learnt in each training view).\n\n"
+            f"Steps: {row_steps(setup.preset, dict(setup.params))}.\n\n"
             f"| rotation median ° | rotation mean ° | % < 10° | % < 30° | flips % (> {FLIP_DEG:g}°) "
             "| translation median (% of depth) | % translation < 2% | detected % | s / image |\n"
             "|---|---|---|---|---|---|---|---|---|\n"
