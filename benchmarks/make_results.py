@@ -57,8 +57,10 @@ objects: [`results/rejection_threshold.md`](results/rejection_threshold.md)
 (pasted on clutter, the `cluttered` preset).
 
 The whole viewing sphere (issue 28): pybullet's r2d2 rendered at
-elevations -30 to 60°, tested pasted on clutter, with rotation and
-translation errors in the camera frame, `posevote evaluate rendered-sphere
+elevations -30 to 60° (the features morphed between neighbouring views),
+tested pasted on clutter, with rotation and
+translation errors in the camera frame (the translation against the mesh
+origin, which the model learns in each training view), `posevote evaluate rendered-sphere
 --jobs 2` ([`results/rendered-sphere/report.md`](results/rendered-sphere/report.md),
 the errors plotted in
 [`results/rendered-sphere/rotation_errors.png`](results/rendered-sphere/rotation_errors.png));
