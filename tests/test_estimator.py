@@ -121,19 +121,23 @@ def test_appearance_refine_takes_the_nearest_training_view(synthetic_training, d
 
 
 def test_a_verification_that_finds_nothing_falls_back_to_the_polished_search(
-        synthetic_training, draw, monkeypatch):
-    import posevote.pipeline
+        synthetic_training, draw):
+    from posevote import pipeline
 
     images, az, boxes = synthetic_training
     est = PoseEstimator(appearance=AppearanceOptions(candidates=5, jitter=0.0))
     est.fit(images, az, boxes=boxes)
-    img = draw(np.radians(110.0))
-    unverified = est.set_params(appearance__candidates=0).estimate(img)
-    # The first search is left unpolished for the verification; when that
-    # finds no candidate, the estimate is the polished search's.
-    monkeypatch.setattr(posevote.pipeline, "verify", lambda *args, **kwargs: None)
-    fallen_back = est.set_params(appearance__candidates=5).estimate(img)
-    assert fallen_back.modes == unverified.modes and fallen_back.best is not None
+    state, steps = est._begin(draw(np.radians(110.0)), "rgb")
+    assert [s.name for s in steps[:2]] == ["search", "verify"]
+    # The first search is left unpolished for the verification; when that finds no
+    # candidate (here: no probe scores), the search runs again, polished.
+    searched = pipeline.run(state, steps[:1])
+    empty = replace(searched.probes, score=np.zeros_like(searched.probes.score))
+    fallen = pipeline.verify_boxes(replace(searched, probes=empty))
+    polished = pipeline.run(replace(state, needs=state.needs - {"ranked probes"}), steps[:1])
+    assert fallen.verified_box is None and fallen.features is state.features
+    np.testing.assert_array_equal(fallen.probes.score, polished.probes.score)
+    assert not np.array_equal(searched.probes.score, polished.probes.score)
 
 
 def test_verification_with_per_scale_search_and_local_refinement(synthetic_training, draw):
