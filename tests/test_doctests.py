@@ -9,7 +9,7 @@ import pytest
 
 #: The modules whose docstrings carry the public API's examples.
 MODULES = ("posevote.estimator", "posevote.camera", "posevote.data.training_set",
-           "posevote.data.bop", "posevote.data.toy", "posevote.batch")
+           "posevote.data.bop", "posevote.data.toy", "posevote.batch", "posevote.evaluation.metrics")
 
 
 @pytest.fixture(scope="module")

@@ -537,7 +537,8 @@ def weights(model: Path, output: Path, views: int) -> None:
 
 @cli.command()
 @click.argument("protocol", type=click.Choice(["coil-category", "coil-loio", "epfl-single",
-                                               "epfl-10-10", "epfl-cv", "rendered-sphere"]))
+                                               "epfl-10-10", "epfl-cv", "rendered-sphere",
+                                               "frames"]))
 @click.option("--data", type=click.Path(path_type=Path), default=None,
               help="Data folder: ../shared/data, or the dataset's own folder (not for "
                    "rendered-sphere, which renders its own).")
@@ -555,15 +556,31 @@ def weights(model: Path, output: Path, views: int) -> None:
               help="Estimate the test images on this Dask cluster instead of --jobs "
                    "(pip install 'posevote[dask]').")
 @click.option("--images", type=click.IntRange(1, 10_000), default=None,
-              help="rendered-sphere only: test images [default: 40].")
+              help="rendered-sphere: test images [default: 40]; frames: frames with the "
+                   "object per object and size [default: 2].")
+@click.option("--preset", default=None,
+              help="frames only: the preset of the objects' models [default: cluttered].")
 def evaluate(protocol: str, data: Path | None, out: Path | None, jobs: int, every: int,
-             rows: str | None, scheduler: str | None, images: int | None) -> None:
-    """Run an evaluation PROTOCOL (the paper's, on real data; or the rendered sphere)."""
+             rows: str | None, scheduler: str | None, images: int | None,
+             preset: str | None) -> None:
+    """Run an evaluation PROTOCOL (the paper's, on real data; the rendered sphere; the
+    frames benchmark)."""
     from posevote.evaluation.protocols import load_protocol
     from posevote.evaluation.report import markdown_table
     from posevote.evaluation.runner import run_protocol
 
     out = _output_folder(out if out is not None else Path("results") / protocol, "--out")
+    if preset is not None and protocol != "frames":
+        raise click.BadParameter("only for frames", param_hint="--preset")
+    if protocol == "frames":
+        for name, given in (("--every", every != 1), ("--rows", rows is not None)):
+            if given:
+                raise click.BadParameter("not used by frames", param_hint=name)
+        if data is None:
+            raise click.BadParameter("frames needs the data folder", param_hint="--data")
+        _evaluate_frames(out, data, jobs=jobs, scheduler=scheduler, frames=images or 2,
+                         preset=preset or "cluttered")
+        return
     if protocol == "rendered-sphere":
         for name, given in (("--data", data is not None), ("--every", every != 1),
                             ("--rows", rows is not None)):
@@ -574,7 +591,7 @@ def evaluate(protocol: str, data: Path | None, out: Path | None, jobs: int, ever
     if data is None:
         raise click.BadParameter(f"{protocol} needs the data folder", param_hint="--data")
     if images is not None:
-        raise click.BadParameter("only for rendered-sphere", param_hint="--images")
+        raise click.BadParameter("only for rendered-sphere and frames", param_hint="--images")
     try:
         proto = load_protocol(protocol, data)
         row_list = None if rows is None else [r.strip() for r in rows.split(",") if r.strip()]
@@ -602,6 +619,36 @@ def evaluate(protocol: str, data: Path | None, out: Path | None, jobs: int, ever
         click.echo("Published numbers to compare with:\n")
         click.echo(proto.published)
     click.echo(f"report, summary.json, results.csv and plots in {out}/")
+
+
+def _evaluate_frames(out: Path, data: Path, *, jobs: int, scheduler: str | None, frames: int,
+                     preset: str) -> None:
+    from posevote.evaluation.frames import FramesSetup, report_text, run_frames
+    from posevote.presets import get_preset
+
+    try:
+        get_preset(preset)
+    except ValueError as exc:
+        raise click.BadParameter(str(exc), param_hint="--preset") from None
+    setup = FramesSetup(preset=preset, frames=frames)
+    bar = None
+
+    def progress(done: int, total: int) -> None:
+        nonlocal bar
+        if bar is None:
+            bar = _progress(total, "frames")
+        bar.update(done - bar.n)
+
+    try:
+        summary = run_frames(setup, data, out, jobs=jobs, scheduler=scheduler,
+                             progress=progress, log=lambda m: click.echo(m, err=True))
+    except BAD_INPUT as exc:
+        raise _input_error(exc) from None
+    finally:
+        if bar is not None:
+            bar.close()
+    click.echo(report_text(setup, summary))
+    click.echo(f"report, summary.json, records.jsonl and calibration.png in {out}/")
 
 
 def _evaluate_sphere(out: Path, *, jobs: int, scheduler: str | None, images: int) -> None:

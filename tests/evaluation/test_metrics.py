@@ -29,3 +29,28 @@ def test_box_iou():
     assert box_iou([0, 0, 10, 10], [0, 0, 10, 10]) == pytest.approx(1.0)
     assert box_iou([0, 0, 10, 10], [5, 0, 10, 10]) == pytest.approx(50 / 150)
     assert box_iou([0, 0, 10, 10], [20, 20, 5, 5]) == 0.0
+
+
+def test_calibration_bins_and_error():
+    from posevote.evaluation.metrics import calibration
+
+    cal = calibration([0.95, 0.95, 0.15, 0.15], [True, False, False, False])
+    assert cal["n"] == 4 and cal["ece"] == pytest.approx(0.5 * 0.45 + 0.5 * 0.15)
+    assert [b[2] for b in cal["bins"]] == [0, 2, 0, 0, 0, 0, 0, 0, 0, 2]
+    assert calibration([1.0], [True])["ece"] == 0.0          # 1.0 falls in the last bin
+    with pytest.raises(ValueError, match="outcomes"):
+        calibration([0.5], [True, False])
+
+
+def test_risk_coverage_and_precision():
+    from posevote.evaluation.metrics import (
+        accuracy_at_coverage,
+        average_precision,
+        risk_coverage,
+    )
+
+    cov, acc = risk_coverage([0.9, 0.1, 0.5, 0.7], [True, False, False, True])
+    assert cov.tolist() == [0.25, 0.5, 0.75, 1.0] and acc.tolist() == [1.0, 1.0, 2 / 3, 0.5]
+    assert accuracy_at_coverage([0.9, 0.1, 0.5, 0.7], [True, False, False, True], 0.5) == 1.0
+    assert average_precision([0.9, 0.8], [True, True], 2) == 1.0
+    assert average_precision([0.9, 0.8], [False, True], 4) == pytest.approx(0.125)

@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from posevote._io import atomic_write_text, atomic_write_with
+from posevote.evaluation.metrics import confidence_outcomes
 from posevote.evaluation.protocols import Protocol
 
 #: Fields of a record, in CSV column order.
@@ -47,16 +48,17 @@ def _fmt(value: Any, digits: int = 1) -> str:
 def markdown_table(summary: dict[str, Any]) -> str:
     """The rows of a summary as a Markdown table, overall then per group."""
     head = ("| row | group | n | median ° | mean ° | p90 ° | % < 22.5° | % < 45° | flip % "
-            "| detected % | recognised % | features kept % | s / image |\n"
-            "|---|---|---|---|---|---|---|---|---|---|---|---|---|\n")
+            "| detected % | recognised % | features kept % | ECE | % right, top 85% "
+            "| s / image |\n"
+            "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n")
     lines = []
     for row in summary["rows"]:
         if not row.get("available", True):
             lines.append(f"| {row['name']} | – | not available: {row['note']} |"
-                         + " |" * 10)
+                         + " |" * 12)
             continue
         if "overall" not in row:
-            lines.append(f"| {row['name']} | – | not run |" + " |" * 10)
+            lines.append(f"| {row['name']} | – | not run |" + " |" * 12)
             continue
         parts = [("all", row["overall"])] + list(row["groups"].items())
         for group, m in parts:
@@ -66,6 +68,7 @@ def markdown_table(summary: dict[str, Any]) -> str:
                 f"| {_fmt(m['under_45'])} | {_fmt(m.get('flip_rate'))} "
                 f"| {_fmt(m['detection_rate'])} "
                 f"| {_fmt(m['recognition_rate'])} | {_fmt(row.get('features_kept_percent'))} "
+                f"| {_fmt(m.get('ece'), 3)} | {_fmt(m.get('right_top_85'))} "
                 f"| {_fmt(m['median_seconds'], 3)} |")
     return head + "\n".join(lines) + "\n"
 
@@ -134,7 +137,11 @@ def write_report(protocol: Protocol, summary: dict[str, Any],
         plot_per_instance(mine, out / "per_instance.png", title=f"{protocol.name}: {main}")
         plot_scatter(mine, out / "scatter.png", title=f"{protocol.name}: {main}")
         plot_worst_cases(mine, out / "worst_cases.png")
-        plots = ["error_histogram.png", "per_instance.png", "scatter.png", "worst_cases.png"]
+        prob, near, right = confidence_outcomes(mine)
+        plot_calibration(prob, near, out / "calibration.png", success=right,
+                         title=f"{protocol.name}: {main}, the best mode's probability")
+        plots = ["error_histogram.png", "per_instance.png", "scatter.png", "worst_cases.png",
+                 "calibration.png"]
     sub = "" if summary.get("every", 1) == 1 else (
         f"\n**Subsample**: every {summary['every']}th test image of each split.\n")
     rows = "\n".join(f"- **{r.name}**: " + (
@@ -146,6 +153,10 @@ def write_report(protocol: Protocol, summary: dict[str, Any],
     text = (f"# {protocol.name}\n\n{protocol.description}\n{sub}\n"
             f"Every row starts from the `{protocol.preset}` preset (posevote.presets, "
             f"docs/DEFAULTS.md) and changes:\n\n{rows}\n\n{markdown_table(summary)}\n"
+            "ECE: the expected calibration error of the best mode's probability against its "
+            "event (the truth within 30°, the box found where it is known); % right, top 85%: "
+            "the share under 45° (box found) of the 85% of images whose best mode is the most "
+            "probable.\n\n"
             + (f"Per split, with the spread over the splits (flip: error over 135°, or over "
                f"67.5° on the half circle):\n\n{split_table(summary)}\n"
                if split_table(summary) else "")
@@ -265,4 +276,33 @@ def plot_worst_cases(records: Sequence[dict[str, Any]], path: Path, *, n: int = 
         ax.set_title(f"{Path(rec['image']).name}: error {rec['error_deg']:.0f}°", fontsize=8)
     fig.suptitle("Worst cases (red: estimate, green: true box; rose: estimated orientation)",
                  fontsize=9)
+    _save(fig, path)
+
+
+def plot_calibration(confidence: Sequence[float], right: Sequence[bool], path: Path, *,
+                     title: str = "", success: Sequence[bool] | None = None) -> None:
+    """The reliability diagram (the rate of the probability's event, ``right``, against the
+    stated probability, per bin, with the counts) beside the risk-coverage curve (the rate of
+    ``success``, by default ``right``, among the most confident share)."""
+    from posevote.evaluation.metrics import calibration, risk_coverage
+
+    plt = _figure()
+    fig, (left, right_ax) = plt.subplots(1, 2, figsize=(10, 3.8))
+    cal = calibration(confidence, right)
+    bins = np.array([b for b in cal["bins"] if b[2] > 0], dtype=np.float64)
+    left.plot([0, 1], [0, 1], color="grey", lw=0.8, ls="--")
+    if bins.size:
+        left.bar((bins[:, 0] + bins[:, 1]) / 2, bins[:, 4], width=bins[:, 1] - bins[:, 0],
+                 alpha=0.5, edgecolor="k", label="right rate")
+        left.plot(bins[:, 3], bins[:, 4], "o-", label="per bin")
+        for b in bins:
+            left.annotate(f"{int(b[2])}", ((b[0] + b[1]) / 2, min(b[4] + 0.03, 0.97)),
+                          ha="center", fontsize=7)
+    left.set(xlabel="probability of the best mode", ylabel="share right", xlim=(0, 1),
+             ylim=(0, 1), title=f"reliability (ECE {cal['ece']:.3f}, n {cal['n']})")
+    cov, acc = risk_coverage(confidence, right if success is None else success)
+    right_ax.plot(100 * cov, 100 * acc)
+    right_ax.set(xlabel="% of estimates kept (most confident first)", ylabel="% right",
+                 xlim=(0, 100), ylim=(0, 101), title="risk-coverage")
+    fig.suptitle(title, fontsize=9)
     _save(fig, path)

@@ -45,7 +45,14 @@ from posevote._io import atomic_write_text, folder_lock, read_records, repair_re
 from posevote._parallel import ordered_map
 from posevote.batch import run_image
 from posevote.estimator import PoseEstimator
-from posevote.evaluation.metrics import box_iou, flip_threshold_deg, summarize_errors
+from posevote.evaluation.metrics import (
+    accuracy_at_coverage,
+    box_iou,
+    calibration,
+    confidence_outcomes,
+    flip_threshold_deg,
+    summarize_errors,
+)
 from posevote.evaluation.protocols import Protocol, Row, Split
 from posevote.evaluation.report import write_report
 from posevote.geometry import angular_error
@@ -400,6 +407,9 @@ def _metrics(records: Sequence[dict[str, Any]]) -> dict[str, Any]:
     m: dict[str, Any] = summarize_errors(
         [r["error_deg"] for r in records],
         flip_deg=[flip_threshold_deg(bool(r.get("half_turn", False))) for r in records])
+    prob, near, right = confidence_outcomes(records)
+    m["ece"] = calibration(prob, near)["ece"]
+    m["right_top_85"] = 100.0 * accuracy_at_coverage(prob, right, 0.85)
     det = [r["detected"] for r in records if r.get("detected") is not None]
     m["detection_rate"] = float(100.0 * np.mean(det)) if det else None
     rec = [r.get("recognised") == r["instance"] for r in records

@@ -8,6 +8,7 @@ patch of another photograph.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cache
 
@@ -74,7 +75,8 @@ def paste_on_clutter(view: NDArray, box: NDArray[np.float64], *, rng: np.random.
                      canvas_shape: tuple[int, int] = (256, 256),
                      scale_range: tuple[float, float] = (0.7, 1.3),
                      inplane_range_deg: tuple[float, float] = (-30.0, 30.0),
-                     occlusion: float = 0.2, mask: NDArray[np.bool_] | None = None) -> PastedView:
+                     occlusion: float = 0.2, mask: NDArray[np.bool_] | None = None,
+                     backdrop: Callable[..., NDArray[np.float64]] | None = None) -> PastedView:
     """Paste an object view onto clutter, with a random similarity transform.
 
     Parameters
@@ -94,6 +96,9 @@ def paste_on_clutter(view: NDArray, box: NDArray[np.float64], *, rng: np.random.
         Fraction of the object's pixels to hide (a band from a random side).
     mask : ndarray of bool, optional
         The object's pixels (default: :func:`posevote.data.object_mask`).
+    backdrop : callable, optional
+        ``backdrop(shape, rng=rng)``: the background and the occluder's patch
+        (default: :func:`clutter_background`).
 
     Returns
     -------
@@ -114,7 +119,8 @@ def paste_on_clutter(view: NDArray, box: NDArray[np.float64], *, rng: np.random.
     M = np.hstack([rot, (np.array([u, v]) - rot @ centre)[:, None]])
     warped = cv2.warpAffine(img.astype(np.float32), M, (W, H), flags=cv2.INTER_LINEAR)
     warped_mask = cv2.warpAffine(obj_mask, M, (W, H), flags=cv2.INTER_LINEAR)
-    background = clutter_background(canvas_shape, rng=rng)
+    backdrop = clutter_background if backdrop is None else backdrop
+    background = backdrop(canvas_shape, rng=rng)
     out = warped_mask * warped + (1.0 - warped_mask) * background
     hidden = 0.0
     inside = warped_mask > 0.5
@@ -130,7 +136,7 @@ def paste_on_clutter(view: NDArray, box: NDArray[np.float64], *, rng: np.random.
             band[rows.min():rows.max() + 1, c0:c1 + 1] = True
         else:
             band[r0:r1 + 1, cols.min():cols.max() + 1] = True
-        occluder = clutter_background(canvas_shape, rng=rng)
+        occluder = backdrop(canvas_shape, rng=rng)
         out = np.where(band, occluder, out)
         hidden = float((band & inside).sum() / inside.sum())
     rows, cols = np.nonzero(inside)

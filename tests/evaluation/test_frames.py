@@ -1,0 +1,83 @@
+"""The frames benchmark: frames drawn from their seed, a run end to end, its figures."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from posevote.cli import cli
+from posevote.evaluation.frames import FramesSetup, frame, mosaic, run_frames, summarize
+
+
+def test_setup_refuses_what_it_cannot_run():
+    for bad in ({"objects": ()}, {"frames": -1}, {"sizes": ((10, 10),)}, {"seed": -2}):
+        with pytest.raises(ValueError, match=next(iter(bad))):
+            FramesSetup(**bad)
+
+
+def test_a_mosaic_fills_its_canvas_from_its_seed(epfl_dir):
+    from posevote.data import read_epfl
+
+    frames = [str(p) for p in read_epfl(epfl_dir, cars=[1]).images[:10]]
+    a = mosaic((300, 500), rng=np.random.default_rng(4), frames=frames)
+    b = mosaic((300, 500), rng=np.random.default_rng(4), frames=frames)
+    assert a.shape == (300, 500) and np.array_equal(a, b)
+    assert (a > 0).mean() > 0.95 and a.std() > 0.05       # no gap left, real texture
+
+
+def test_a_frame_is_drawn_from_its_item(coil_dir):
+    data = str(coil_dir.parent)
+    setup = FramesSetup(objects=(6,), sizes=((240, 320),))
+    item = {"object": 6, "kind": "object", "size": [240, 320], "index": 1}
+    one, truth = frame(item, setup, data)
+    two, again = frame(item, setup, data)
+    assert np.array_equal(one, two) and truth == again
+    assert 0.4 <= truth["scale"] <= 3.0 and truth["truth_deg"] % 20 != 0
+    empty, nothing = frame({**item, "kind": "empty"}, setup, data)
+    assert empty.shape == (240, 320) and nothing == {}
+
+
+def test_a_run_reports_detection_calibration_and_time(coil_dir, tmp_path):
+    setup = FramesSetup(objects=(6,), frames=2, empty=1, sizes=((240, 320),))
+    summary = run_frames(setup, coil_dir.parent, tmp_path, jobs=1)
+    for name in ("records.jsonl", "summary.json", "report.md", "calibration.png",
+                 "models/obj6.npz"):
+        assert (tmp_path / name).stat().st_size > 0
+    records = [json.loads(line) for line in (tmp_path / "records.jsonl").read_text().splitlines()]
+    assert [r["kind"] for r in records] == ["object", "object", "empty"]
+    figures = summary["by_size"]["320x240"]
+    assert figures["frames"] == 2 and figures["empty_frames"] == 1
+    # The cluttered preset keeps every pose: the empty frame is a false alarm.
+    assert summary["threshold"] == 0.0 and figures["false_alarms_per_empty"] == 1.0
+    assert "Steps: search → rerank by template" in (tmp_path / "report.md").read_text()
+
+
+def test_the_figures_at_a_threshold():
+    recs = [{"kind": "object", "size": [480, 640], "score": 0.5, "iou": 0.8, "error_deg": 10.0,
+             "probability": 0.9, "seconds": 1.0},
+            {"kind": "object", "size": [480, 640], "score": 0.2, "iou": 0.1, "error_deg": 90.0,
+             "probability": 0.6, "seconds": 1.0},
+            {"kind": "empty", "size": [480, 640], "score": 0.3, "iou": 0.0, "error_deg": None,
+             "probability": 0.8, "seconds": 1.0}]
+    at = summarize(recs, 0.25)["by_size"]["640x480"]
+    assert at["recall"] == 50.0 and at["false_alarms_per_empty"] == 1.0
+    assert at["average_precision"] == pytest.approx(50.0)
+    assert at["found_within_30"] == 100.0 and at["right_of_p90"] == 100.0
+    assert summarize(recs, 0.4)["by_size"]["640x480"]["false_alarms_per_empty"] == 0.0
+
+
+def test_the_command_line_runs_the_frames(monkeypatch, tmp_path, coil_dir):
+    from posevote.evaluation import frames
+
+    small = {"objects": (6,), "frames": 1, "empty": 1, "sizes": ((240, 320),)}
+    monkeypatch.setattr(frames, "FramesSetup",
+                        lambda **kw: FramesSetup(**{**kw, **small}))
+    r = CliRunner().invoke(cli, ["evaluate", "frames", "--data", str(coil_dir.parent),
+                                 "--out", str(tmp_path / "f")])
+    assert r.exit_code == 0, r.output
+    assert "| 320x240 |" in r.output
+    bad = CliRunner().invoke(cli, ["evaluate", "coil-loio", "--preset", "default"])
+    assert bad.exit_code == 2 and "only for frames" in bad.output
