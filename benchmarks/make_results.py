@@ -73,6 +73,12 @@ estimate --depth-range` does:
 [`results/rendered_sphere_known_depths.md`](results/rendered_sphere_known_depths.md)
 (`--known-depths`).
 
+Found means found (issue 63): the 40 development COIL objects looked for in
+640×480 and 1280×720 mosaics of EPFL frames at 0.4-3 times their training
+size, and frames without them, `posevote evaluate frames --data ../shared/data
+--jobs 2` ([`results/frames/report.md`](results/frames/report.md), the
+calibration in [`results/frames/calibration.png`](results/frames/calibration.png)).
+
 All 40 development objects of `../shared/data/coil-100` (the paper's 16 and
 the 24 added for cross-validation, among them objects that look alike from
 every side), the same protocol, with each estimate's best-mode probability:
