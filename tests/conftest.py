@@ -197,3 +197,25 @@ def saved_model(fitted_estimator, tmp_path_factory):
     path = tmp_path_factory.mktemp("model") / "model.npz"
     fitted_estimator.save(path)
     return path
+
+
+@pytest.fixture
+def vote_scene():
+    """A view's features, a pose, and test maps of the features placed there amid clutter."""
+    from posevote.features import EdgeFeatures
+    from posevote.scoring.maps import prepare_test
+
+    rng = np.random.default_rng(3)
+    train_xy = rng.uniform(-20, 20, (40, 2))
+    train_theta = rng.uniform(0, np.pi, 40)
+    train_w = rng.uniform(0.2, 1.0, 40)
+    train_w /= train_w.sum()
+    alpha, scale, t = 0.2, 1.1, np.array([70.0, 50.0])
+    c, s = np.cos(alpha), np.sin(alpha)
+    moved = scale * train_xy @ np.array([[c, s], [-s, c]]) + t
+    clutter = rng.uniform(0, 120, (60, 2))
+    test = EdgeFeatures(xy=np.vstack([moved, clutter]),
+                        theta=np.mod(np.concatenate([train_theta + alpha,
+                                                     rng.uniform(0, np.pi, 60)]), np.pi))
+    maps = prepare_test(test, (100, 120), position_sigma=2.0, orientation_kappa=8.0)
+    return train_xy, train_theta, train_w, alpha, scale, t, maps

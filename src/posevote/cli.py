@@ -162,6 +162,23 @@ def _progress(total: int, label: str):
                 disable=None)
 
 
+class _DoneBar:
+    """A progress bar fed ``(done, total)``, made when the total is first known."""
+
+    def __init__(self, label: str) -> None:
+        self.label = label
+        self.bar: Any = None
+
+    def __call__(self, done: int, total: int) -> None:
+        if self.bar is None:
+            self.bar = _progress(total, self.label)
+        self.bar.update(done - self.bar.n)
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+
+
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(package_name="posevote")
 def cli() -> None:
@@ -595,23 +612,13 @@ def evaluate(protocol: str, data: Path | None, out: Path | None, jobs: int, ever
     try:
         proto = load_protocol(protocol, data)
         row_list = None if rows is None else [r.strip() for r in rows.split(",") if r.strip()]
-        bar = None
-
-        def progress(done: int, total: int) -> None:
-            nonlocal bar
-            if bar is None:
-                bar = _progress(total, protocol)
-                bar.update(done)
-            else:
-                bar.update(done - bar.n)
-
+        progress = _DoneBar(protocol)
         try:
             summary = run_protocol(proto, out, jobs=jobs, every=every, rows=row_list,
                                    progress=progress, log=lambda m: click.echo(m, err=True),
                                    scheduler=scheduler)
         finally:
-            if bar is not None:
-                bar.close()
+            progress.close()
     except BAD_INPUT as exc:
         raise _input_error(exc) from None
     click.echo(markdown_table(summary))
@@ -631,22 +638,14 @@ def _evaluate_frames(out: Path, data: Path, *, jobs: int, scheduler: str | None,
     except ValueError as exc:
         raise click.BadParameter(str(exc), param_hint="--preset") from None
     setup = FramesSetup(preset=preset, frames=frames)
-    bar = None
-
-    def progress(done: int, total: int) -> None:
-        nonlocal bar
-        if bar is None:
-            bar = _progress(total, "frames")
-        bar.update(done - bar.n)
-
+    progress = _DoneBar("frames")
     try:
         summary = run_frames(setup, data, out, jobs=jobs, scheduler=scheduler,
                              progress=progress, log=lambda m: click.echo(m, err=True))
     except BAD_INPUT as exc:
         raise _input_error(exc) from None
     finally:
-        if bar is not None:
-            bar.close()
+        progress.close()
     click.echo(report_text(setup, summary))
     click.echo(f"report, summary.json, records.jsonl and calibration.png in {out}/")
 
@@ -655,22 +654,14 @@ def _evaluate_sphere(out: Path, *, jobs: int, scheduler: str | None, images: int
     from posevote.evaluation.sphere import SphereSetup, report_text, run_sphere
 
     setup = SphereSetup(n_images=images)
-    bar = None
-
-    def progress(done: int, total: int) -> None:
-        nonlocal bar
-        if bar is None:
-            bar = _progress(total, "rendered-sphere")
-        bar.update(done - bar.n)
-
+    progress = _DoneBar("rendered-sphere")
     try:
         summary = run_sphere(setup, out, jobs=jobs, scheduler=scheduler, progress=progress,
                              log=lambda m: click.echo(m, err=True))
     except BAD_INPUT as exc:
         raise _input_error(exc) from None
     finally:
-        if bar is not None:
-            bar.close()
+        progress.close()
     click.echo(report_text(setup, summary, summary["n_training_views"]))
     click.echo(f"report, summary.json, records.jsonl and rotation_errors.png in {out}/")
 

@@ -21,30 +21,12 @@ from posevote.scoring.score import (
 )
 
 
-@pytest.fixture
-def scene():
-    rng = np.random.default_rng(3)
-    train_xy = rng.uniform(-20, 20, (40, 2))
-    train_theta = rng.uniform(0, np.pi, 40)
-    train_w = rng.uniform(0.2, 1.0, 40)
-    train_w /= train_w.sum()
-    alpha, scale, t = 0.2, 1.1, np.array([70.0, 50.0])
-    c, s = np.cos(alpha), np.sin(alpha)
-    moved = scale * train_xy @ np.array([[c, s], [-s, c]]) + t
-    clutter = rng.uniform(0, 120, (60, 2))
-    test = EdgeFeatures(xy=np.vstack([moved, clutter]),
-                        theta=np.mod(np.concatenate([train_theta + alpha,
-                                                     rng.uniform(0, np.pi, 60)]), np.pi))
-    maps = prepare_test(test, (100, 120), position_sigma=2.0, orientation_kappa=8.0)
-    return train_xy, train_theta, train_w, alpha, scale, t, maps
-
-
 @pytest.mark.parametrize("table", ["maps", "never zero"])
-def test_votes_kernel_matches_reference(scene, table):
+def test_votes_kernel_matches_reference(vote_scene, table):
     # The maps' table (the runs of orientations within reach, wrapping round
     # 0 and pi for the training voters near them) and one that never falls
     # to 0 (every pair, once).
-    train_xy, train_theta, train_w, alpha, scale, _, maps = scene
+    train_xy, train_theta, train_w, alpha, scale, _, maps = vote_scene
     lut = maps.lut if table == "maps" else 0.1 + maps.lut
     assert np.any(np.mod(train_theta + alpha, np.pi) < 0.1)
     assert np.any(np.mod(train_theta + alpha, np.pi) > np.pi - 0.1)
@@ -94,8 +76,8 @@ def test_the_vote_grids_argmax_is_numpys(shape):
 
 
 
-def test_search_finds_the_translation(scene):
-    train_xy, train_theta, train_w, alpha, scale, t, maps = scene
+def test_search_finds_the_translation(vote_scene):
+    train_xy, train_theta, train_w, alpha, scale, t, maps = vote_scene
     score, trans = search_translations(maps, train_xy, train_theta, train_w,
                                        inplanes=np.array([0.0, alpha, 0.4]),
                                        scales=np.array([1.0, scale]))
@@ -107,8 +89,8 @@ def test_search_finds_the_translation(scene):
     assert score[1, 1] == pytest.approx(2.0 / (np.sqrt(2 * np.pi) * 2.0), abs=0.04)
 
 
-def test_search_on_a_feature_subset(scene):
-    train_xy, train_theta, train_w, alpha, scale, t, maps = scene
+def test_search_on_a_feature_subset(vote_scene):
+    train_xy, train_theta, train_w, alpha, scale, t, maps = vote_scene
     grid = {"inplanes": np.array([0.0, alpha, 0.4]), "scales": np.array([1.0, scale])}
     full = search_translations(maps, train_xy, train_theta, train_w, **grid)
     same = search_translations(maps, train_xy, train_theta, train_w, max_features=40, **grid)
@@ -126,13 +108,13 @@ def test_search_on_a_feature_subset(scene):
     assert score[1, 1] == pytest.approx(ref, rel=1e-2)
 
 
-def test_search_polishes_the_vote_peak_with_the_best_exact_score(scene):
+def test_search_polishes_the_vote_peak_with_the_best_exact_score(vote_scene):
     # A decoy made of the voting features only (the 20 heaviest of 40, with
     # max_voters=20), each three times over, outvotes the object, but
     # with the density capped at one point's peak it explains only the
     # voters' share of the weight. Ranking the vote peaks by their exact
     # score finds the object; the top vote peak alone is the decoy.
-    train_xy, train_theta, train_w, *_ = scene
+    train_xy, train_theta, train_w, *_ = vote_scene
     obj, decoy = np.array([45.0, 50.0]), np.array([125.0, 50.0])
     voters = strongest_voters(train_w, 20)
     xy = np.vstack([train_xy + obj] + [train_xy[voters] + decoy] * 3)
@@ -150,8 +132,8 @@ def test_search_polishes_the_vote_peak_with_the_best_exact_score(scene):
     assert top_score[0, 0] < 0.8 * score[0, 0]
 
 
-def test_an_unpolished_search_keeps_the_exact_score_at_the_vote_cell(scene):
-    train_xy, train_theta, train_w, alpha, scale, t, maps = scene
+def test_an_unpolished_search_keeps_the_exact_score_at_the_vote_cell(vote_scene):
+    train_xy, train_theta, train_w, alpha, scale, t, maps = vote_scene
     grid = {"inplanes": np.array([0.0, alpha, 0.4]), "scales": np.array([1.0, scale]),
             "cell": 2.5}
     polished = search_translations(maps, train_xy, train_theta, train_w, **grid)
@@ -177,11 +159,11 @@ def test_the_voters_are_the_heaviest_features_in_their_order():
 
 
 
-def test_only_the_best_steps_are_polished(scene):
+def test_only_the_best_steps_are_polished(vote_scene):
     # Thirteen in-plane angles in one call: the POLISHED_STEPS whose exact
     # score at the vote cell is best are polished as in a call of their own,
     # the others keep the unpolished score and cell.
-    train_xy, train_theta, train_w, alpha, scale, _, maps = scene
+    train_xy, train_theta, train_w, alpha, scale, _, maps = vote_scene
     angles = alpha + np.radians(np.arange(-30, 31, 5))
     kw = {"scales": np.array([scale]), "n_candidates": 2}
     rough, rough_t = search_translations(maps, train_xy, train_theta, train_w, inplanes=angles,
@@ -199,11 +181,11 @@ def test_only_the_best_steps_are_polished(scene):
         np.testing.assert_array_equal(trans[k], alone_t[0])
 
 
-def test_polishing_later_is_polishing_in_the_search(scene):
+def test_polishing_later_is_polishing_in_the_search(vote_scene):
     # An unpolished search polished afterwards from its vote cells gives what
     # the polished search gives, to the bit (four steps, fewer than
     # POLISHED_STEPS: the search polishes every one).
-    train_xy, train_theta, train_w, alpha, scale, _, maps = scene
+    train_xy, train_theta, train_w, alpha, scale, _, maps = vote_scene
     kw = {"inplanes": alpha + np.radians([-10.0, 0.0]), "scales": np.array([0.9, scale]),
           "n_candidates": 2}
     assert 4 <= POLISHED_STEPS
@@ -218,11 +200,11 @@ def test_polishing_later_is_polishing_in_the_search(scene):
 
 
 @pytest.mark.parametrize("offset", [(6.0, -5.0), (-3.0, 7.0), (1.0, 0.0)])
-def test_the_polish_climbs_to_the_peak_from_pixels_away(scene, offset):
+def test_the_polish_climbs_to_the_peak_from_pixels_away(vote_scene, offset):
     # From a start several pixels off (odd and even offsets: the climb
     # strides 2 pixels, then steps 1), the polish ends on the exact score's
     # peak, above the score at the start and at the peak's pixel neighbours.
-    train_xy, train_theta, train_w, alpha, scale, t, maps = scene
+    train_xy, train_theta, train_w, alpha, scale, t, maps = vote_scene
     kw = {"inplanes": np.array([alpha]), "scales": np.array([scale])}
     start = np.array([[t + np.array(offset)]])
     score, trans = polish_translations(maps, train_xy, train_theta, train_w, score=np.ones((1, 1)),

@@ -85,9 +85,7 @@ def test_recognition_margin():
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_the_spacing_kernel_matches_its_reference(seed):
-    rng = np.random.default_rng(seed)
-    xy = rng.uniform(0, 60, (300, 2))
-    xy[10] = xy[11]                      # a repeated point is 0 from its twin
-    xy[20:30, 0] = 17.0                  # ties in the sort by x
+    xy = np.random.default_rng(seed).uniform(0, 60, (300, 2))
+    xy[10], xy[20:30, 0] = xy[11], 17.0  # a point 0 from its twin; ties in the sort by x
     assert median_spacing(xy) == pytest.approx(median_spacing_reference(xy), rel=1e-12)
     assert median_spacing(xy[:1]) == median_spacing_reference(xy[:1]) == 1.0

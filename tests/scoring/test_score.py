@@ -19,29 +19,10 @@ from posevote.scoring.score import (
 )
 
 
-@pytest.fixture
-def scene():
-    rng = np.random.default_rng(3)
-    train_xy = rng.uniform(-20, 20, (40, 2))
-    train_theta = rng.uniform(0, np.pi, 40)
-    train_w = rng.uniform(0.2, 1.0, 40)
-    train_w /= train_w.sum()
-    alpha, scale, t = 0.2, 1.1, np.array([70.0, 50.0])
-    c, s = np.cos(alpha), np.sin(alpha)
-    moved = scale * train_xy @ np.array([[c, s], [-s, c]]) + t
-    clutter = rng.uniform(0, 120, (60, 2))
-    test = EdgeFeatures(xy=np.vstack([moved, clutter]),
-                        theta=np.mod(np.concatenate([train_theta + alpha,
-                                                     rng.uniform(0, np.pi, 60)]), np.pi))
-    maps = prepare_test(test, (100, 120), position_sigma=2.0, orientation_kappa=8.0)
-    return train_xy, train_theta, train_w, alpha, scale, t, maps
-
-
-
 @pytest.mark.parametrize(("sigma", "block"), [(2.0, 1), (7.0, 3), (9.5, 4)])
 @pytest.mark.parametrize("t", [(70.0, 50.0), (71.3, 48.6), (5.0, 5.0), (118.5, 98.7)])
-def test_score_kernels_match_reference(scene, t, sigma, block):
-    train_xy, train_theta, train_w, alpha, scale, _, maps = scene
+def test_score_kernels_match_reference(vote_scene, t, sigma, block):
+    train_xy, train_theta, train_w, alpha, scale, _, maps = vote_scene
     # A wide kernel's maps are on a grid of blocks: odd (centred on a pixel) and even.
     maps = prepare_test(EdgeFeatures(xy=maps.xy, theta=maps.theta), (100, 120),
                         position_sigma=sigma, orientation_kappa=8.0)
@@ -57,10 +38,10 @@ def test_score_kernels_match_reference(scene, t, sigma, block):
                          ) == pytest.approx(got, rel=1e-9, abs=1e-12)
 
 
-def test_density_options_and_chance(scene):
+def test_density_options_and_chance(vote_scene):
     from posevote.scoring.maps import scaled_features
 
-    *_, maps = scene
+    *_, maps = vote_scene
     assert maps.chance == pytest.approx(float(maps.density.mean()))
     # On a coarse grid, the mean of phi read at every pixel.
     wide = prepare_test(EdgeFeatures(xy=maps.xy, theta=maps.theta), (100, 120),
