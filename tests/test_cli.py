@@ -87,6 +87,14 @@ def test_not_found_exit_code(model_file, tmp_path):
     assert result.exit_code == 3
 
 
+@pytest.mark.parametrize("images", [1, 2])
+def test_not_found_says_what_to_try(model_file, test_image, images):
+    result = CliRunner().invoke(cli, ["estimate", str(model_file), *[str(test_image)] * images,
+                                      "--min-score", "0.999"])
+    assert result.exit_code == 3 and "no object found" in result.output
+    assert "--scale-range" in result.output and "--min-score 0" in result.output
+
+
 @pytest.mark.parametrize("kind", ["missing", "corrupt", "foreign"])
 def test_bad_model_file(kind, test_image, tmp_path):
     path = tmp_path / "m.npz"

@@ -27,6 +27,11 @@ import click
 
 EXIT_INPUT = 1
 EXIT_NOT_FOUND = 3
+#: What to try when nothing scored above ``min_score``.
+NOT_FOUND_HINT = ("If the object is there: crop the image around it, give --scale-range "
+                  "when it is much smaller or larger than in the training images (or "
+                  "--camera with --depth-range), or --min-score 0 for the best pose "
+                  "anyway (check its score and p).")
 
 
 class InputError(click.ClickException):
@@ -432,7 +437,7 @@ def _estimate_one(est: Any, image: Path, *, as_json: bool, overlay: Path | None,
             click.echo("  ambiguous: the best mode is more likely wrong than right (look again)")
     elif result.top_score > 0:
         click.echo(f"no object found (best score {result.top_score:.3f}, not above "
-                   f"min_score {est.min_score:g})", err=True)
+                   f"min_score {est.min_score:g}). {NOT_FOUND_HINT}", err=True)
     else:
         click.echo("no object found (no edges to vote)", err=True)
     if not result.found:
@@ -479,6 +484,8 @@ def _estimate_many(model: Path, paths: list[Path], changes: dict[str, Any], came
                                f"score {b['score']:.3f}")
                 elif "error" not in rec:
                     click.echo(f"{rec['image']}: no object found")
+    if found + failed < len(paths):
+        click.echo(NOT_FOUND_HINT, err=True)
     return found, failed
 
 

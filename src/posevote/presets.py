@@ -83,8 +83,13 @@ PRESETS: dict[str, Preset] = {p.name: p for p in (
         script="benchmarks/coil_instance.py --selftest --clutter / --cv --clutter",
         measured="COIL instance protocol in clutter 3.79 / 8.78 deg, 77.4% of positions "
                  "within 5 px (docs/results/coil_instance_clutter.md); the template "
-                 "re-ranking chosen on the development clutter CVs (docs/DEFAULTS.md)",
-        params={"search": SearchOptions(inplane_range_deg=(-30.0, 30.0), inplane_step_deg=5.0,
+                 "re-ranking chosen on the development clutter CVs (docs/DEFAULTS.md); "
+                 "min_score by 5-fold cross-validation over the 40 development objects on "
+                 "the frames benchmark (benchmarks/default_thresholds.py, "
+                 "docs/results/default_thresholds.md)",
+        # The lowest score that at most 2.5% of the empty frames exceed.
+        params={"min_score": 0.0645,
+                "search": SearchOptions(inplane_range_deg=(-30.0, 30.0), inplane_step_deg=5.0,
                                         scale_range=(0.7, 1.3), scale_steps=7,
                                         object_kernel=True, chance_correction=True,
                                         density_cap=0.5),
@@ -97,8 +102,9 @@ PRESETS: dict[str, Preset] = {p.name: p for p in (
         chosen_on="EPFL cars 2-10, the epfl-single protocol on each (car 1 only reports)",
         script="benchmarks/tune_epfl.py --protocol epfl-single",
         measured="epfl-single (car 1, 40 training frames) 0.58 / 0.90 deg "
-                 "(docs/results/epfl-single)",
-        params={"edges": EdgeOptions(max_train_features=150),
+                 "(docs/results/epfl-single); min_score as cluttered's "
+                 "(docs/results/default_thresholds.md)",
+        params={"min_score": 0.110, "edges": EdgeOptions(max_train_features=150),
                 "search": SearchOptions(viewpoint_subdivisions=2, scale_steps=5,
                                         object_kernel=True, chance_correction=True),
                 "refine": RefineOptions(rescale=False, local="profile"), "morph_views": True}),
@@ -110,8 +116,10 @@ PRESETS: dict[str, Preset] = {p.name: p for p in (
                   "re-checked on the five-fold epfl-cv (8 training cars per fold)",
         script="benchmarks/tune_epfl.py",
         measured="five-fold epfl-cv every 4th frame 3.98 / 22.7 deg, 86.9% under 45 deg, "
-                 "8.1% flips, 97.3% found (docs/results/epfl-cv)",
-        params={"edges": EdgeOptions(max_train_features=150),
+                 "8.1% flips, 97.3% found (docs/results/epfl-cv); min_score by the "
+                 "epfl-cv folds and empty mosaics of photographs "
+                 "(benchmarks/default_thresholds.py, docs/results/default_thresholds.md)",
+        params={"min_score": 0.106, "edges": EdgeOptions(max_train_features=150),
                 "kernel": KernelOptions(position_sigma=6.0, viewpoint_bandwidth_deg=5.0),
                 "search": _EPFL_SEARCH,
                 # The appearance step regresses the box and reads the viewpoint itself.

@@ -9,7 +9,15 @@ import pytest
 from click.testing import CliRunner
 
 from posevote.cli import cli
-from posevote.evaluation.frames import FramesSetup, frame, mosaic, run_frames, summarize
+from posevote.evaluation.frames import (
+    FramesSetup,
+    frame,
+    mosaic,
+    reported_outcomes,
+    run_frames,
+    summarize,
+)
+from posevote.presets import get_preset
 
 
 def test_setup_refuses_what_it_cannot_run():
@@ -26,6 +34,16 @@ def test_a_mosaic_fills_its_canvas_from_its_seed(epfl_dir):
     b = mosaic((300, 500), rng=np.random.default_rng(4), frames=frames)
     assert a.shape == (300, 500) and np.array_equal(a, b)
     assert (a > 0).mean() > 0.95 and a.std() > 0.05       # no gap left, real texture
+
+
+def test_a_mosaic_of_the_bundled_photographs_has_no_gap():
+    from posevote.evaluation.synthetic import bundled_photographs
+
+    photos = bundled_photographs()
+    assert len(photos) > 5 and all(p.ndim == 2 and 0.0 <= p.min() <= p.max() <= 1.0
+                                   for p in photos)
+    a = mosaic((480, 640), rng=np.random.default_rng(1), frames=photos)
+    assert a.shape == (480, 640) and (a > 0).mean() > 0.9 and a.std() > 0.05
 
 
 def test_a_frame_is_drawn_from_its_item(coil_dir):
@@ -50,8 +68,10 @@ def test_a_run_reports_detection_calibration_and_time(coil_dir, tmp_path):
     assert [r["kind"] for r in records] == ["object", "object", "empty"]
     figures = summary["by_size"]["320x240"]
     assert figures["frames"] == 2 and figures["empty_frames"] == 1
-    # The cluttered preset keeps every pose: the empty frame is a false alarm.
-    assert summary["threshold"] == 0.0 and figures["false_alarms_per_empty"] == 1.0
+    # Estimated without a threshold, judged at the preset's.
+    threshold = get_preset("cluttered").params["min_score"]
+    assert summary["threshold"] == threshold > 0.0
+    assert figures["false_alarms_per_empty"] == float(records[2]["score"] > threshold)
     assert "Steps: search → rerank by template" in (tmp_path / "report.md").read_text()
 
 
@@ -67,6 +87,10 @@ def test_the_figures_at_a_threshold():
     assert at["average_precision"] == pytest.approx(50.0)
     assert at["found_within_30"] == 100.0 and at["right_of_p90"] == 100.0
     assert summarize(recs, 0.4)["by_size"]["640x480"]["false_alarms_per_empty"] == 0.0
+    # What is reported: under the threshold no pose (p 0, not right).
+    right, prob = reported_outcomes(recs, 0.25)
+    assert right.tolist() == [True, False, False] and prob.tolist() == [0.9, 0.0, 0.8]
+    assert at["ece"] == pytest.approx((0.1 + 0.8) / 3)
 
 
 def test_the_command_line_runs_the_frames(monkeypatch, tmp_path, coil_dir):

@@ -134,13 +134,14 @@ def _mosaic_frames(folder: str) -> tuple[str, ...]:
     return tuple(str(p) for p in read_epfl(folder, cars=list(MOSAIC_CARS)).images)
 
 
-def mosaic(shape: tuple[int, int], *, rng: np.random.Generator, frames: Sequence[str]
-           ) -> NDArray[np.float64]:
+def mosaic(shape: tuple[int, int], *, rng: np.random.Generator,
+           frames: Sequence[str | NDArray[np.float64]]) -> NDArray[np.float64]:
     """A grey canvas of ``shape`` tiled with random crops of real photographs.
 
-    Rows of random heights are filled with tiles of random frames, each
-    scaled by 1 to 2 and mirrored at random, cropped to fit: the clutter of
-    real scenes (showrooms, people, cars) at the frame's size.
+    Rows of random heights are filled with tiles of random frames (image
+    paths, or grey images in [0, 1]), each scaled by 1 to 2 and mirrored at
+    random, cropped to fit: the clutter of real scenes (showrooms, people,
+    cars) at the frame's size.
     """
     h, w = shape
     canvas = np.zeros((h, w), dtype=np.float64)
@@ -149,7 +150,8 @@ def mosaic(shape: tuple[int, int], *, rng: np.random.Generator, frames: Sequence
         row = min(h - top, int(rng.integers(120, 360)))
         left = 0
         while left < w:
-            tile = read_image(frames[int(rng.integers(len(frames)))])
+            pick = frames[int(rng.integers(len(frames)))]
+            tile = read_image(pick) if isinstance(pick, str) else pick
             zoom = float(rng.uniform(1.0, 2.0))
             tile = np.asarray(cv2.resize(tile, None, fx=zoom, fy=zoom,
                                          interpolation=cv2.INTER_LINEAR), dtype=np.float64)
@@ -231,9 +233,7 @@ def _score(records: Sequence[dict[str, Any]], threshold: float) -> dict[str, Any
     hit = [r["kind"] == "object" and r["iou"] >= 0.5 for r in records]
     found = [r for r in objects if r["score"] > threshold and r["iou"] >= 0.5]
     errors = np.array([r["error_deg"] for r in found], dtype=float)
-    right = np.array([h and (r["error_deg"] or 0.0) < RIGHT_DEG
-                      for r, h in zip(records, hit, strict=True)])
-    prob = np.array([0.0 if r["probability"] is None else r["probability"] for r in records])
+    right, prob = reported_outcomes(records, threshold)
     cal = calibration(prob, right)
     return {
         "frames": len(objects), "empty_frames": len(empties),
@@ -248,6 +248,21 @@ def _score(records: Sequence[dict[str, Any]], threshold: float) -> dict[str, Any
         "accuracy_at_85": 100 * accuracy_at_coverage(prob, right, 0.85),
         "seconds_median": float(np.median([r["seconds"] for r in records])),
     }
+
+
+def reported_outcomes(records: Sequence[dict[str, Any]], threshold: float
+                      ) -> tuple[NDArray[np.bool_], NDArray[np.float64]]:
+    """Whether each frame's reported pose is right, and its reported probability.
+
+    What a user sees at ``threshold``: a frame whose best score is not above
+    it reports no object (probability 0, never right); otherwise its best
+    mode is right when the box is found (IoU >= 0.5) within 30° of azimuth.
+    """
+    over = np.array([r["score"] > threshold for r in records], dtype=bool)
+    right = over & np.array([r["kind"] == "object" and r["iou"] >= 0.5
+                             and (r["error_deg"] or 0.0) < RIGHT_DEG for r in records])
+    prob = np.where(over, [r["probability"] or 0.0 for r in records], 0.0)
+    return right, prob
 
 
 def _right_above(prob: NDArray[np.float64], right: NDArray[np.bool_], level: float
@@ -297,7 +312,8 @@ def report_text(setup: FramesSetup, summary: dict[str, Any]) -> str:
             f"{setup.empty} without, on mosaics of EPFL cars 1-10 frames; seed {setup.seed}; "
             f"overrides {dict(setup.params) or 'none'}. Found: score over the threshold "
             f"({summary['threshold']:g}, the preset's) and box IoU ≥ 0.5; right: found and "
-            f"within {RIGHT_DEG:g}° of azimuth.\n\n"
+            f"within {RIGHT_DEG:g}° of azimuth. The probabilities (ECE, p ≥ 0.9, the most "
+            "confident 85%, the plot) are those reported: a frame not found reports p 0.\n\n"
             f"Steps: {row_steps(setup.preset, dict(setup.params))}.\n\n{head}{rows}\n"
             "![calibration](calibration.png)\n")
 
@@ -353,8 +369,7 @@ def run_frames(setup: FramesSetup, data: str | Path, out: str | Path, *, jobs: i
     atomic_write_text(out / "records.jsonl", "".join(json.dumps(r) + "\n" for r in records))
     atomic_write_text(out / "summary.json", json.dumps(summary, indent=2, default=str) + "\n")
     atomic_write_text(out / "report.md", report_text(setup, summary))
-    right = [r["kind"] == "object" and r["iou"] >= 0.5 and (r["error_deg"] or 0.0) < RIGHT_DEG
-             for r in records]
-    plot_calibration([r["probability"] or 0.0 for r in records], right, out / "calibration.png",
+    right, prob = reported_outcomes(records, setup.threshold())
+    plot_calibration(prob.tolist(), right.tolist(), out / "calibration.png",
                      title=f"frames, {setup.preset} preset: the best mode's probability")
     return summary

@@ -59,6 +59,11 @@ def _background(name: str) -> NDArray[np.float64]:
     return as_gray_float(np.asarray(getattr(skimage.data, name)()), name=name)
 
 
+def bundled_photographs() -> tuple[NDArray[np.float64], ...]:
+    """The bundled scikit-image photographs that the clutter is cut from (no cars in them)."""
+    return tuple(_background(name) for name in _BACKGROUNDS)
+
+
 def clutter_background(shape: tuple[int, int], *, rng: np.random.Generator) -> NDArray[np.float64]:
     """A random crop of a bundled scikit-image photograph, resized to ``shape``."""
     src = _background(_BACKGROUNDS[rng.integers(len(_BACKGROUNDS))])
