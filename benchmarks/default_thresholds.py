@@ -47,7 +47,7 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 from _markdown import emit  # noqa: E402
 
 from posevote import PoseEstimator  # noqa: E402
-from posevote._io import read_records  # noqa: E402
+from posevote._io import atomic_write_text, read_records  # noqa: E402
 from posevote.evaluation.frames import FramesSetup, mosaic, run_frames  # noqa: E402
 from posevote.evaluation.protocols import epfl_cv  # noqa: E402
 from posevote.evaluation.runner import run_protocol, slug  # noqa: E402
@@ -125,7 +125,7 @@ def category_records(data: str, runs: Path, jobs: int) -> list[dict[str, Any]]:
                     result = est.estimate(mosaic(shape, rng=rng, frames=photos))
                     empties.append({"object": fold, "kind": "empty", "size": list(shape),
                                     "index": k, "score": float(result.top_score)})
-        empties_path.write_text("".join(json.dumps(r) + "\n" for r in empties))
+        atomic_write_text(empties_path, "".join(json.dumps(r) + "\n" for r in empties))
     cars = []
     for fold, split in enumerate(protocol.splits, start=1):
         key = f"{slug(protocol.main_row)}__{slug(split.name)}"
