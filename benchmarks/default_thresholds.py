@@ -37,6 +37,7 @@ import argparse
 import json
 import os
 import sys
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -101,10 +102,16 @@ def cross_validate(records: list[dict[str, Any]], false_alarms: float
     return everyone, folds
 
 
-def category_records(data: str, runs: Path, jobs: int) -> list[dict[str, Any]]:
+def category_records(data: str, runs: Path, jobs: int, params: dict[str, Any] | None = None
+                     ) -> list[dict[str, Any]]:
     """epfl-cv's cars and empty mosaics of photographs, each fold's model looking ("object" is
-    the fold); epfl-cv is run in ``runs/category-epfl-cv`` unless it is there."""
+    the fold); epfl-cv is run in ``runs/category-epfl-cv`` unless it is there, its main row
+    with ``params`` over its own."""
     protocol = epfl_cv(data)
+    if params:
+        protocol = replace(protocol, rows=tuple(
+            replace(r, params={**(r.params or {}), **params}) if r.name == protocol.main_row
+            else r for r in protocol.rows))
     out = runs / "category-epfl-cv"
     if not (out / "summary.json").exists():
         print("running epfl-cv (every 4th frame, the category row) ...", file=sys.stderr,
@@ -118,31 +125,38 @@ def category_records(data: str, runs: Path, jobs: int) -> list[dict[str, Any]]:
         empties = []
         for fold, split in enumerate(protocol.splits, start=1):
             key = f"{slug(protocol.main_row)}__{slug(split.name)}"
-            est = PoseEstimator.load(out / "models" / f"{key}.npz").set_params(min_score=0.0)
+            est = PoseEstimator.load(out / "models" / f"{key}.npz").set_params(
+                **{**(params or {}), "min_score": 0.0})
             for shape in SIZES:
                 for k in range(EMPTY_PER_FOLD):
                     rng = np.random.default_rng([fold, shape[1], k])
                     result = est.estimate(mosaic(shape, rng=rng, frames=photos))
+                    best = result.best
                     empties.append({"object": fold, "kind": "empty", "size": list(shape),
-                                    "index": k, "score": float(result.top_score)})
+                                    "index": k, "score": float(result.top_score),
+                                    "probability": None if best is None else best.probability})
         atomic_write_text(empties_path, "".join(json.dumps(r) + "\n" for r in empties))
     cars = []
     for fold, split in enumerate(protocol.splits, start=1):
         key = f"{slug(protocol.main_row)}__{slug(split.name)}"
         cars += [{"object": fold, "kind": "object", "size": None, "score": r["score"],
-                  "iou": r.get("iou", 0.0)}
+                  "iou": r.get("iou", 0.0), "probability": r.get("probability"),
+                  "error_deg": r["error_deg"], "detected": r.get("detected")}
                  for r in read_records(out / "records" / f"{key}.jsonl")]
     return cars + empties
 
 
-def preset_records(preset: str, data: str, runs: Path, jobs: int) -> list[dict[str, Any]]:
-    """The frames run of ``preset`` (run now unless ``runs/<preset>`` holds one)."""
+def preset_records(preset: str, data: str, runs: Path, jobs: int,
+                   params: dict[str, Any] | None = None) -> list[dict[str, Any]]:
+    """The frames run of ``preset``, ``params`` over it (run now unless ``runs/<preset>``
+    holds one)."""
     if preset == "category":
-        return category_records(data, runs, jobs)
+        return category_records(data, runs, jobs, params)
     path = runs / preset / "records.jsonl"
     if not path.exists():
         print(f"running the frames benchmark with {preset} ...", file=sys.stderr, flush=True)
-        run_frames(FramesSetup(preset=preset), data, runs / preset, jobs=jobs)
+        run_frames(FramesSetup(preset=preset, params=params or {}), data, runs / preset,
+                   jobs=jobs)
     return [json.loads(line) for line in path.read_text().splitlines()]
 
 

@@ -58,7 +58,11 @@ objects: [`results/rejection_threshold.md`](results/rejection_threshold.md)
 (issue 63): at most 2.5% of empty frames reporting an object, 5-fold
 cross-validation on the frames benchmark (`cluttered`, `turntable`) and on
 epfl-cv with empty mosaics of photographs (`category`):
-[`results/default_thresholds.md`](results/default_thresholds.md).
+[`results/default_thresholds.md`](results/default_thresholds.md). Each
+preset's probability calibration (issue 63), fitted and 5-fold
+cross-validated on the same kinds of data with the wrong answers in them,
+with its reliability and risk-coverage plots:
+[`results/probability_calibration.md`](results/probability_calibration.md).
 
 The whole viewing sphere (issue 28): pybullet's r2d2 rendered at
 elevations -30 to 60° (the features morphed between neighbouring views),

@@ -21,9 +21,12 @@ def test_the_four_presets_and_their_provenance():
 
 def test_presets_differ_where_they_should():
     default, clutter = PRESETS["default"], PoseEstimator.from_preset("cluttered")
-    assert default.params == {"min_score": 0.54} and clutter.refine.local == "profile"
-    # Every preset rejects by default (benchmarks/default_thresholds.py).
+    assert set(default.params) == {"min_score", "search"} and clutter.refine.local == "profile"
+    # Every preset rejects by default (benchmarks/default_thresholds.py) and calibrates its
+    # probability (benchmarks/calibrate_probability.py).
     assert all(PoseEstimator.from_preset(name).min_score > 0.0 for name in PRESETS)
+    assert all(PoseEstimator.from_preset(name).search.calibration != (1.0, 0.0, 0.0)
+               for name in PRESETS)
     assert clutter.search.inplane_range_deg == (-30.0, 30.0)
     turntable = PoseEstimator.from_preset("turntable")
     assert turntable.morph_views and turntable.search.viewpoint_subdivisions == 2

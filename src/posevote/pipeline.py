@@ -56,7 +56,7 @@ from numpy.typing import NDArray
 from posevote._options import Options
 from posevote.appearance import AppearanceOptions
 from posevote.appearance.model import AppearanceCollector
-from posevote.appearance.refine import appearance_refine
+from posevote.appearance.refine import appearance_refine, front_back_share
 from posevote.appearance.verify import verify
 from posevote.camera import Camera, place_all
 from posevote.features.edges import EdgeFeatures, EdgeOptions, without_box
@@ -199,6 +199,10 @@ class EstimateState:
         The verification winner's regressed box.
     instance, instance_margin : str, float
         The recognised instance and its margin.
+    front_back : float or None
+        The best mode's share when the appearance step chose its viewpoint
+        (its side against the half-turned one by HOG); None: its share of the
+        search's profile.
     top_score : float
         The best mode's score before the rejection.
     progress : callable or None
@@ -221,6 +225,7 @@ class EstimateState:
     verified_box: tuple[float, float, float, float] | None = None
     instance: str = ""
     instance_margin: float = math.nan
+    front_back: float | None = None
     top_score: float = 0.0
     progress: Callable[[int], None] | None = field(default=None, repr=False)
 
@@ -378,9 +383,11 @@ def appearance(state: EstimateState) -> EstimateState:
         return state
     options = state.settings.appearance
     assert options is not None
-    return state.best_replaced(appearance_refine(state.hypotheses[0], state.grey(),
-                                                 state.trained.model, _appearance_model(state),
-                                                 options, verified_box=state.verified_box))
+    trained = _appearance_model(state)
+    best = appearance_refine(state.hypotheses[0], state.grey(), state.trained.model, trained,
+                             options, verified_box=state.verified_box)
+    return replace(state.best_replaced(best), front_back=front_back_share(
+        best, state.grey(), state.trained.model, trained))
 
 
 def outline(state: EstimateState) -> EstimateState:
@@ -398,9 +405,13 @@ def reject(state: EstimateState) -> EstimateState:
 
 
 def probabilities(state: EstimateState) -> EstimateState:
-    """Each kept mode's probability from the score profile over viewpoints."""
+    """Each kept mode's probability: its share of the score profile over viewpoints (the
+    best mode's: its front/back share where the appearance chose its viewpoint), the best
+    mode's calibrated with its score."""
     assert state.probes is not None
-    return state.with_hypotheses(with_probabilities(list(state.hypotheses), state.probes))
+    return state.with_hypotheses(with_probabilities(
+        list(state.hypotheses), state.probes, state.settings.search.calibration,
+        best_share=state.front_back))
 
 
 def place(state: EstimateState) -> EstimateState:

@@ -57,7 +57,11 @@ class Preset:
 # most similar training car's model re-estimating near the category's mode.
 _EPFL_SEARCH = SearchOptions(viewpoint_step_deg=10.0, scale_range=(0.7, 1.45), scale_steps=6,
                              object_kernel=True, chance_correction=True, density_cap=0.6,
-                             max_search_features=1000)
+                             max_search_features=1000, calibration=(0.495, 5.838, 11.014))
+
+# Each preset's ``SearchOptions.calibration``: the logistic fit of "right" (within 30 deg,
+# box found) on its development estimates, wrong objects and empty frames among them
+# (benchmarks/calibrate_probability.py, docs/results/probability_calibration.md).
 
 PRESETS: dict[str, Preset] = {p.name: p for p in (
     Preset(
@@ -73,7 +77,8 @@ PRESETS: dict[str, Preset] = {p.name: p for p in (
                  "(benchmarks/rejection_threshold.py, docs/results/rejection_threshold.md)",
         # The threshold of the best balanced accuracy between views of the object
         # and views of the 39 other objects plus background crops.
-        params={"min_score": 0.54}),
+        params={"min_score": 0.54,
+                "search": SearchOptions(calibration=(0.918, 2.056, 2.760))}),
     Preset(
         name="cluttered",
         description="one object anywhere in clutter, tilted by up to 30 deg, 0.7-1.3 times "
@@ -92,7 +97,7 @@ PRESETS: dict[str, Preset] = {p.name: p for p in (
                 "search": SearchOptions(inplane_range_deg=(-30.0, 30.0), inplane_step_deg=5.0,
                                         scale_range=(0.7, 1.3), scale_steps=7,
                                         object_kernel=True, chance_correction=True,
-                                        density_cap=0.5),
+                                        density_cap=0.5, calibration=(0.755, 3.089, 7.327)),
                 "refine": RefineOptions(rescale=False, local="profile", share_scale=True),
                 "templates": TemplateOptions()}),
     Preset(
@@ -106,7 +111,8 @@ PRESETS: dict[str, Preset] = {p.name: p for p in (
                  "(docs/results/default_thresholds.md)",
         params={"min_score": 0.110, "edges": EdgeOptions(max_train_features=150),
                 "search": SearchOptions(viewpoint_subdivisions=2, scale_steps=5,
-                                        object_kernel=True, chance_correction=True),
+                                        object_kernel=True, chance_correction=True,
+                                        calibration=(0.0, 5.602, 10.002)),
                 "refine": RefineOptions(rescale=False, local="profile"), "morph_views": True}),
     Preset(
         name="category",

@@ -39,8 +39,10 @@ class Hypothesis:
         The object's reference point in the camera frame, metres (given a
         camera and a model that knows the object's height).
     probability : float
-        Chance that the true viewpoint is within 30 degrees of this mode's,
-        calibrated on the development folds
+        Chance that this estimate is right: the true viewpoint within 30
+        degrees of this mode's, the box on the object; the best mode's
+        calibrated by ``SearchOptions.calibration`` on its preset's
+        development folds, wrong answers among them
         (:mod:`posevote.refinement.probability`); NaN when not computed.
     """
 

@@ -5,8 +5,11 @@ import pytest
 
 from posevote.geometry import viewing_direction
 from posevote.inference.probes import ProbeSet
+from posevote.inference.setup import SearchOptions
 from posevote.refinement.probability import (
+    IDENTITY,
     MODE_RADIUS,
+    calibrated,
     mode_probabilities,
     scored_viewpoints,
     with_probabilities,
@@ -84,3 +87,39 @@ def test_with_probabilities_sets_each_mode_and_keeps_the_pose():
     assert with_probabilities([], probes) == []
     scored = scored_viewpoints(probes)
     assert len(scored) == len(probes.azimuth) and scored[0][0] == probes.azimuth[0]
+
+
+def test_calibrated_is_the_logistic_of_share_and_score():
+    share, score = np.array([0.2, 0.5, 0.9]), np.array([0.1, 0.3, 0.6])
+    assert calibrated(share, score, IDENTITY).tolist() == share.tolist()
+    a, b, c = 0.8, 2.0, 1.5
+    z = a * np.log(share / (1 - share)) + b * np.log(score) + c
+    assert np.allclose(calibrated(share, score, (a, b, c)), 1 / (1 + np.exp(-z)))
+    # A higher score never lowers it; a share of 0 or 1 and a score of 0 stay finite.
+    assert np.all(np.diff(calibrated(0.5, [0.1, 0.2, 0.4], (a, b, c))) > 0)
+    edge = calibrated([0.0, 1.0], [0.0, 1.0], (a, b, c))
+    assert np.all(np.isfinite(edge)) and np.all((edge > 0) & (edge < 1))
+
+
+def test_calibration_sets_the_best_mode_and_scales_the_others_to_what_is_left():
+    probes = _probes((40.0, 0.8), (220.0, 0.4))
+    hyps = [Hypothesis(azimuth=np.radians(a), elevation=0.0, inplane=0.0, scale=1.0,
+                       position=(0.0, 0.0), box=(0, 0, 1, 1), score=s, refined=True)
+            for a, s in ((40.0, 0.9), (220.0, 0.5))]
+    raw = with_probabilities(hyps, probes)
+    sure = with_probabilities(hyps, probes, (1.0, 0.0, 5.0))
+    assert sure[0].probability == pytest.approx(float(calibrated(raw[0].probability, 0.9,
+                                                                 (1.0, 0.0, 5.0))))
+    assert sure[0].probability + sure[1].probability <= 1.0 + 1e-12
+    assert sure[1].probability < raw[1].probability
+    # A low score takes the best mode's probability down whatever its share.
+    doubt = with_probabilities(hyps, probes, (1.0, 4.0, 0.0))
+    assert doubt[0].probability < raw[0].probability
+
+
+@pytest.mark.parametrize("bad", [(1.0, 0.0), (-0.5, 0.0, 0.0), (1.0, float("nan"), 0.0),
+                                 (1.0, 0.0, 1e3), "abc"])
+def test_search_options_refuse_a_malformed_calibration(bad):
+    with pytest.raises(ValueError, match="SearchOptions.calibration must be"):
+        SearchOptions(calibration=bad)
+    assert SearchOptions(calibration=[0, 1, 2]).calibration == (0.0, 1.0, 2.0)

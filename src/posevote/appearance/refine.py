@@ -8,6 +8,8 @@ regressions (:mod:`posevote.appearance.model`), or, after the verification,
 the verified box is kept (the appearance chose it among the candidates);
 then the viewpoint becomes that of the training view whose descriptor is
 nearest, among those within :data:`APPEARANCE_WINDOW_DEG` of the estimate.
+How much nearer those views are than the half-turned ones is the estimate's
+front/back evidence (:func:`front_back_share`), which its probability reads.
 """
 
 from __future__ import annotations
@@ -19,7 +21,12 @@ from numpy.typing import NDArray
 
 from posevote.appearance import AppearanceOptions
 from posevote.appearance.descriptors import box_descriptor
-from posevote.appearance.verify import jittered_nearest_view, nearest_view, regress_described
+from posevote.appearance.verify import (
+    jittered_nearest_view,
+    nearest_view,
+    regress_described,
+    views_within,
+)
 from posevote.geometry import box_centre, viewing_direction
 from posevote.model.density import PoseModel
 from posevote.model.training import AppearanceModel
@@ -82,3 +89,37 @@ def appearance_refine(hypothesis: Hypothesis, image: NDArray[np.floating], model
         return out
     return replace(out, azimuth=float(model.view_azimuth[k]),
                    elevation=float(model.view_elevation[k]))
+
+
+def front_back_share(hypothesis: Hypothesis, image: NDArray[np.floating], model: PoseModel,
+                     appearance: AppearanceModel) -> float | None:
+    """How much more the mode's box looks like its side of the object than the other:
+    ``sigmoid(d_back - d_front)``.
+
+    ``d_front`` is the squared HOG distance from the box's descriptor to the
+    nearest training view within :data:`APPEARANCE_WINDOW_DEG` of the mode's
+    viewpoint, ``d_back`` to the nearest within that angle of its half-turn.
+    The edge votes' profile tells a car's front from its back poorly; this
+    share ranks the category's flips last (``benchmarks/calibrate_probability.py``).
+
+    Returns
+    -------
+    float or None
+        The share in (0, 1); None when the box cannot be described or no
+        training view lies near either side.
+    """
+    d = box_descriptor(image, hypothesis.box, appearance.window)
+    if d is None:
+        return None
+    views = model.view_directions()
+    limit = np.radians(APPEARANCE_WINDOW_DEG)
+    front = views_within(views, viewing_direction(hypothesis.azimuth, hypothesis.elevation),
+                         limit)
+    back = views_within(views, viewing_direction(hypothesis.azimuth + np.pi,
+                                                 hypothesis.elevation), limit)
+    if len(front) == 0 or len(back) == 0:
+        return None
+    ref = appearance.descriptors
+    sq = np.einsum("ij,ij->i", ref, ref) - 2.0 * (ref @ d)
+    margin = float(sq[back].min() - sq[front].min())
+    return float(1.0 / (1.0 + np.exp(-np.clip(margin, -50.0, 50.0))))

@@ -136,11 +136,13 @@ _ABLATION = (
 _APPEARANCE = "HOG verification of 40 candidates, box regression, nearest-view viewpoint"
 _EPFL_ROWS = (
     Row(name="paper: weights + fitting",
-        params={"appearance": None, "recognition": None, "search__rerank": "coverage"},
+        params={"appearance": None, "recognition": None, "search__rerank": "coverage",
+                "search__calibration": (1.0, 0.0, 0.0)},
         note="edges alone, the paper's row of Fig. 7: the category preset's search without "
              "its appearance stages and without the instance model, its best probes "
              "re-ranked by coverage (SearchOptions.rerank) instead of by the HOG "
-             "verification"),
+             "verification; its probability the share of the profile (the preset's "
+             "calibration reads the appearance step's front/back share)"),
     Row(name="category preset: + HOG verification + box regression + nearest view", params={},
         note=f"beyond the paper: {_APPEARANCE}"),
     Row(name="category preset + moderate pruning", params={"prune": "moderate"}),

@@ -85,6 +85,13 @@ class SearchOptions(Options):
         test edges in their box that they explain (beyond the paper;
         :mod:`posevote.inference.coverage`); None: by their score alone. (By
         the grey levels: ``TemplateOptions.rerank``.)
+    calibration : (float, float, float), default (1, 0, 0)
+        ``(a, b, c)``: the best mode's probability is
+        ``sigmoid(a logit(p) + b ln(score) + c)`` of its share ``p`` of the
+        search's posterior over viewpoints and its score
+        (:func:`posevote.refinement.probability.calibrated`); each preset's
+        is fitted on its development folds
+        (``benchmarks/calibrate_probability.py``). ``(1, 0, 0)``: the share.
     """
 
     viewpoint_step_deg: float | None = None
@@ -98,6 +105,7 @@ class SearchOptions(Options):
     density_cap: float | None = None
     max_search_features: int | None = None
     rerank: str | None = None
+    calibration: tuple[float, float, float] = (1.0, 0.0, 0.0)
 
     def __post_init__(self) -> None:
         self._number("viewpoint_step_deg", low=0.1, high=180.0, optional=True)
@@ -120,11 +128,24 @@ class SearchOptions(Options):
         self._number("density_cap", low=0.0, high=1e6, low_open=True, optional=True)
         self._number("max_search_features", low=1, high=10_000_000, integer=True,
                      optional=True)
+        self._calibration()
         n_inplane = len(self.grid()[0])
         if n_inplane > MAX_GRID_STEPS:
             self._fail("inplane_step_deg", f"a step giving at most {MAX_GRID_STEPS} in-plane "
                        f"angles over inplane_range_deg (this gives {n_inplane})",
                        self.inplane_step_deg)
+
+    def _calibration(self) -> None:
+        expected = "(a, b, c): three finite numbers, 0 <= a <= 100, |b|, |c| <= 100"
+        value = self.calibration
+        try:
+            a, b, c = (float(v) for v in value)
+        except (TypeError, ValueError):
+            self._fail("calibration", expected, value)
+        if isinstance(value, (str, bytes, dict)) or not (
+                0.0 <= a <= 100.0 and abs(b) <= 100.0 and abs(c) <= 100.0):
+            self._fail("calibration", expected, value)
+        object.__setattr__(self, "calibration", (a, b, c))
 
     def grid(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """The in-plane angles (radians, centred on the range) and scales searched (copies)."""

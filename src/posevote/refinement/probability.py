@@ -13,8 +13,15 @@ plain can), gives every mode about the share of the circle its radius
 covers; two equal peaks (a car's front and back) give each about a half. A
 robot can look again when the best mode's probability is low instead of
 acting on a coin toss. :data:`MODE_SHARPNESS` is chosen on development
-folds so that the probabilities are calibrated (``benchmarks/calibrate_modes.py``,
-docs/DEFAULTS.md).
+folds (``benchmarks/calibrate_modes.py``, docs/DEFAULTS.md).
+
+That share knows the viewpoints but not whether the object is there at all
+(an empty frame, another object, a flip the profile does not show), and it
+reads differently in each preset's data. :func:`calibrated` therefore maps
+the best mode's share and score to the probability that it is right, with
+each preset's ``SearchOptions.calibration`` fitted on development folds that
+hold the wrong answers (``benchmarks/calibrate_probability.py``); the other
+modes share what is left in their proportions.
 """
 
 from __future__ import annotations
@@ -88,11 +95,66 @@ def scored_viewpoints(probes: ProbeSet) -> tuple[tuple[float, float, float], ...
                  zip(probes.azimuth, probes.elevation, viewpoint_profile(probes), strict=True))
 
 
-def with_probabilities(hypotheses: Sequence[Hypothesis], probes: ProbeSet) -> list[Hypothesis]:
-    """The hypotheses with their :func:`mode_probabilities` from the probes' profile."""
+#: Shares and scores are clipped to this distance from 0 (and 1) before their logarithms.
+_TINY = 1e-6
+
+#: The calibration that leaves the posterior's share as it is.
+IDENTITY = (1.0, 0.0, 0.0)
+
+
+def calibrated(share: ArrayLike, score: ArrayLike,
+               calibration: tuple[float, float, float]) -> NDArray[np.float64]:
+    """The probability that a best mode is right, ``sigmoid(a logit(share) + b ln(score) + c)``.
+
+    Parameters
+    ----------
+    share : array_like
+        The best mode's :func:`mode_probabilities` (its share of the posterior).
+    score : array_like
+        Its score (non-negative).
+    calibration : (float, float, float)
+        ``(a, b, c)`` (``SearchOptions.calibration``); :data:`IDENTITY` returns ``share``.
+
+    Returns
+    -------
+    ndarray
+        Probabilities in (0, 1), the shape of ``share``.
+
+    Examples
+    --------
+    >>> float(calibrated(0.5, 0.2, (1.0, 0.0, 0.0)))
+    0.5
+    >>> round(float(calibrated(0.5, 1.0, (2.0, 0.0, 1.0))), 3)
+    0.731
+    """
+    p = np.asarray(share, dtype=np.float64)
+    if tuple(calibration) == IDENTITY:
+        return p.copy()
+    a, b, c = calibration
+    q = np.clip(p, _TINY, 1.0 - _TINY)
+    s = np.maximum(np.asarray(score, dtype=np.float64), _TINY)
+    z = a * np.log(q / (1.0 - q)) + b * np.log(s) + c
+    return 1.0 / (1.0 + np.exp(-z))
+
+
+def with_probabilities(hypotheses: Sequence[Hypothesis], probes: ProbeSet,
+                       calibration: tuple[float, float, float] = IDENTITY, *,
+                       best_share: float | None = None) -> list[Hypothesis]:
+    """The hypotheses (best first) with their probabilities: the best mode's
+    :func:`calibrated` share of the probes' posterior (or ``best_share``, where a later step
+    chose its viewpoint), the others' shares scaled to what is left (the probabilities sum
+    to at most 1)."""
     if not hypotheses:
         return []
     modes = viewing_direction(np.array([h.azimuth for h in hypotheses]),
                               np.array([h.elevation for h in hypotheses]))
     p = mode_probabilities(probes.directions, viewpoint_profile(probes), modes)
+    if best_share is not None:
+        p[0] = best_share
+        p[1:] *= min(1.0, (1.0 - best_share) / max(float(p[1:].sum()), _TINY))
+    best = float(calibrated(p[0], hypotheses[0].score, calibration))
+    rest = float(p[1:].sum())
+    if tuple(calibration) != IDENTITY and rest > 0.0:
+        p[1:] *= min(1.0, (1.0 - best) / rest)
+    p[0] = best
     return [replace(h, probability=float(q)) for h, q in zip(hypotheses, p, strict=True)]
