@@ -172,6 +172,7 @@ def test_train_param_values(folder, tmp_path, param, name):
     ("search=1", "one by one"),
     ("kernel.position_sigma=(1,", "neither a Python literal"),
     ("kernel.position_sigma", "NAME=VALUE"),
+    ("kernel.position_sigma=" + "-" * 100_000 + "1", "at most 1,000"),
 ])
 def test_train_param_syntax(folder, tmp_path, param, text):
     r = invoke("train", folder, "--param", param, "-o", tmp_path / "m.npz")
@@ -243,7 +244,7 @@ def _params(group, field, value):
     ("inf-azimuth", {"view_azimuth": _set(np.inf)}, None, "view_azimuth"),
     ("view-out-of-range", {"view": _set(10_000)}, None, "array shapes"),
     ("instance-out-of-range", {"view_instance": _set(7)}, None, "view_instance"),
-    ("short-weight", {"weight": lambda a: a[:-1]}, None, "array shapes"),
+    ("short-weight", {"weight": lambda a: a[:-1]}, None, "array weight declares shape"),
     ("version-string", {}, lambda h: h.update(version="2"), "'2' is not an integer"),
     ("version-new", {}, lambda h: h.update(version=99), "newer"),
     ("version-old", {}, lambda h: h.update(version=2), "older"),
@@ -258,6 +259,12 @@ def _params(group, field, value):
     ("reference-string", {}, lambda h: h.update(reference_size="big"), "reference_size"),
     ("kappa-negative", {}, lambda h: h["extra"].update(viewpoint_kappa=-1), "viewpoint_kappa"),
     ("params-list", {}, lambda h: h.update(params=[1]), "params"),
+    ("theta-2d", {"theta": lambda a: a[:, None]}, None, "array theta declares shape"),
+    ("theta-absurd", {"theta": _set(1e300)}, None, "theta has values past"),
+    ("azimuth-absurd", {"view_azimuth": _set(1e300)}, None, "view_azimuth has values past"),
+    ("view-float", {"view": lambda a: a.astype(np.float64)}, None, "array view declares"),
+    ("xy-complex", {"xy": lambda a: a.astype(np.complex128)}, None, "not real numbers"),
+    ("xy-long", {"xy": lambda a: np.zeros((len(a) * 1000, 2))}, None, "array xy declares"),
 ])
 def test_bad_model_files(model, tmp_path, image, case, arrays, header, text):
     bad = rewrite(model, tmp_path / f"{case}.npz", header=header, **arrays)
@@ -718,3 +725,115 @@ def test_decoding_in_threads_keeps_stderr(tmp_path, capfd):
     assert out[0::2] == [(64, 64)] * 50 and all("extraneous bytes" in o for o in out[1::2])
     os.write(2, b"still here\n")
     assert "still here" in capfd.readouterr().err
+
+
+# --- paths that escape, outputs over inputs, degenerate ranges (issue 64) ---------------
+
+def test_a_link_out_of_the_training_folder_is_refused(folder, tmp_path):
+    from posevote.data import read_poses_csv
+
+    secret = tmp_path / "secret"
+    secret.mkdir()
+    cv2.imwrite(str(secret / "s.png"), _noise())
+    source = make_csv(folder, tmp_path, "image,azimuth_deg\nv00.png,0\nlinked.png,20\n")
+    (source / "linked.png").symlink_to(secret / "s.png")
+    r = invoke("train", source, "-o", tmp_path / "m.npz")
+    assert r.exit_code == 1 and "row 3" in r.output and "'linked.png'" in r.output
+    assert "leads outside the training folder" in r.output and not (tmp_path / "m.npz").exists()
+    # A linked folder too; allowed on request.
+    (source / "poses.csv").write_text("image,azimuth_deg\nv00.png,0\nsub/s.png,20\n")
+    (source / "sub").symlink_to(secret, target_is_directory=True)
+    with pytest.raises(ValueError, match="row 3: column 'image' names 'sub/s.png', a link"):
+        read_poses_csv(source)
+    assert len(read_poses_csv(source, allow_outside_paths=True)) == 2
+
+
+def test_a_link_inside_the_training_folder_is_read(folder, tmp_path):
+    from posevote.data import read_poses_csv
+
+    source = make_csv(folder, tmp_path, "image,azimuth_deg\nv00.png,0\nsame.png,20\n")
+    (source / "same.png").symlink_to(source / "v01.png")
+    assert len(read_poses_csv(source)) == 2
+
+
+@pytest.mark.parametrize("name", ["poses.csv", "v00.png", "model"])
+def test_train_writes_a_model_file_never_over_an_input(folder, tmp_path, name):
+    source = make_csv(folder, tmp_path, (folder / "poses.csv").read_text())
+    before = (source / name).read_bytes() if (source / name).exists() else None
+    r = invoke("train", source, "-o", source / name)
+    assert r.exit_code == 2 and "-o" in r.output and ".npz" in r.output
+    assert ((source / name).read_bytes() if before is not None else None) == before
+
+
+def test_the_overlay_never_replaces_the_image(model, image, tmp_path):
+    import shutil
+
+    photo = tmp_path / "photo.png"
+    shutil.copy(image, photo)
+    before = photo.read_bytes()
+    r = invoke("estimate", model, photo, "--overlay", photo)
+    assert r.exit_code == 2 and "--overlay" in r.output and "the image itself" in r.output
+    assert photo.read_bytes() == before
+
+
+def test_a_scale_range_of_one_value_searches_one_scale(model, image):
+    r = invoke("estimate", model, image, "--scale-range", "1", "1")
+    assert r.exit_code in (0, 3) and "Traceback" not in r.output and "Error" not in r.output
+    from posevote.inference.setup import SearchOptions
+
+    assert SearchOptions(scale_range=(1.0, 1.0), scale_steps=5).grid()[1].tolist() == [1.0]
+
+
+def test_a_model_header_nested_too_deep_or_with_a_key_twice(model, tmp_path, image):
+    with np.load(model) as data:
+        content = {k: data[k] for k in data.files}
+    text = bytes(content["header"]).decode()
+    for case, header in (("deep", '{"format": ' + "[" * 100_000 + "]" * 100_000 + "}"),
+                         ("twice", '{"version": 6, ' + text[1:])):
+        content["header"] = np.frombuffer(header.encode(), dtype=np.uint8)
+        np.savez(tmp_path / f"{case}.npz", **content)
+        r = invoke("estimate", tmp_path / f"{case}.npz", image)
+        assert r.exit_code == 1 and f"{case}.npz" in r.output, r.output
+        assert ("nests too deep" if case == "deep" else "'version' appears twice") in r.output
+
+
+def test_a_flipped_bit_in_a_compressed_array_names_the_file(model, tmp_path, image):
+    import zipfile
+
+    out = tmp_path / "flipped.npz"
+    with zipfile.ZipFile(model) as src:
+        info = src.getinfo("xy.npy")
+        assert info.compress_type == zipfile.ZIP_DEFLATED
+    raw = bytearray(model.read_bytes())
+    at = info.header_offset + 30 + len(info.filename) + len(info.extra) + 40
+    raw[at] ^= 0x10
+    out.write_bytes(bytes(raw))
+    with pytest.raises(ValueError, match="flipped.npz"):
+        PoseEstimator.load(out)
+    r = invoke("estimate", out, image)
+    assert r.exit_code == 1 and "flipped.npz" in r.output and "Traceback" not in r.output
+
+
+def test_the_image_limit_variable_is_checked_where_an_image_is_read(image):
+    env = {**os.environ, "POSEVOTE_MAX_IMAGE_PIXELS": "abc"}
+    ok = subprocess.run([sys.executable, "-m", "posevote.cli", "presets"], env=env,
+                        capture_output=True, text=True, timeout=120)
+    assert ok.returncode == 0 and "Traceback" not in ok.stderr
+    for value in ("abc", "-1", "inf"):
+        env["POSEVOTE_MAX_IMAGE_PIXELS"] = value
+        r = subprocess.run([sys.executable, "-c", "from posevote.data import read_image; "
+                            f"read_image({str(image)!r})"], env=env, capture_output=True,
+                           text=True, timeout=120)
+        assert r.returncode == 1 and "POSEVOTE_MAX_IMAGE_PIXELS" in r.stderr
+        assert repr(value) in r.stderr
+
+
+def test_fit_origins_far_out_are_refused(synthetic_training):
+    images, az, boxes = synthetic_training
+    origins = np.column_stack([boxes[:, 0], boxes[:, 1], np.ones(len(az))])
+    origins[2, 0] = 1e300
+    with pytest.raises(ValueError, match=r"origins: row 2 is \[1e\+300"):
+        PoseEstimator().fit(images, az, boxes=boxes, origins=origins)
+    origins[2, 0], origins[3, 2] = 10.0, 1e9
+    with pytest.raises(ValueError, match="origins: row 3"):
+        PoseEstimator().fit(images, az, boxes=boxes, origins=origins)

@@ -54,6 +54,19 @@ def test_read_camera_names_the_file(tmp_path):
         read_camera(tmp_path / "none.json")
 
 
+@pytest.mark.parametrize(("text", "message"), [
+    ('{"fx": 500, "fx": 600, "fy": 500, "cx": 1, "cy": 1}', "the key 'fx' appears twice"),
+    ("[" * 100_000 + "]" * 100_000, "the JSON nests too deep"),
+    ('{"fx": 500, "fy": 500, "cx": 1, "cy": 1, "width": "abc"}', "width must be a whole"),
+    ('{"fx": 500, "fy": 500, "cx": 1, "cy": 1, "height": 0}', "height must be a whole"),
+    ('{"fx": 1e-9, "fy": 500, "cx": 1, "cy": 1}', "Camera.fx must be a positive number"),
+])
+def test_camera_files_with_absurd_content_are_refused(tmp_path, text, message):
+    (tmp_path / "cam.json").write_text(text)
+    with pytest.raises(ValueError, match=f"cam.json: {message}"):
+        read_camera(tmp_path / "cam.json")
+
+
 def test_object_height_from_distances():
     cam = Camera.from_dict(CAM)
     # A 0.2 m object at 1, 2 and 4 m appears fy * 0.2 / d pixels high.

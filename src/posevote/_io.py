@@ -145,6 +145,29 @@ def folder_lock(out: Path) -> Iterator[None]:
         fh.close()
 
 
+def _unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for key, value in pairs:
+        if key in out:
+            raise ValueError(f"the key {key!r} appears twice in one object")
+        out[key] = value
+    return out
+
+
+def parse_json(text: str, where: str, *, kind: str = "JSON") -> Any:
+    """JSON ``text``, refused with a ValueError naming ``where`` when it is not JSON (``kind``
+    says what it should be), holds a key twice in one object, or nests deeper than the
+    parser can follow."""
+    try:
+        return json.loads(text, object_pairs_hook=_unique_keys)
+    except RecursionError:
+        raise ValueError(f"{where}: the JSON nests too deep") from None
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{where}: not {kind} ({exc})") from None
+    except ValueError as exc:
+        raise ValueError(f"{where}: {exc}") from None
+
+
 def read_records(path: Path) -> list[dict[str, Any]]:
     """The complete records of a JSON-lines file, one an image (a cut-short last line is dropped)."""
     if not path.is_file():

@@ -92,6 +92,9 @@ class Options:
         return cls(**values)
 
 
+#: The longest value a ``NAME=VALUE`` setting may have (the parser's memory grows with it).
+MAX_SETTING_CHARS = 1000
+
 
 def parse_setting(text: str) -> Any:
     """A ``NAME=VALUE`` setting's value as written on a command line: a Python literal
@@ -103,8 +106,13 @@ def parse_setting(text: str) -> Any:
         For anything else (``(1,``, ``a b``).
     """
     text = text.strip()
+    if len(text) > MAX_SETTING_CHARS:
+        raise ValueError(f"a value of {len(text):,} characters; a setting takes at most "
+                         f"{MAX_SETTING_CHARS:,}")
     try:
         return ast.literal_eval(text)
+    except (MemoryError, RecursionError):
+        raise ValueError(f"{text[:40]!r}... nests too deep to read") from None
     except (ValueError, SyntaxError):
         if re.fullmatch(r"[A-Za-z_][A-Za-z0-9_.-]*", text):
             return text

@@ -31,7 +31,6 @@ A camera file is JSON: ``{"fx": ..., "fy": ..., "cx": ..., "cy": ...}``
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 from collections.abc import Sequence
 from pathlib import Path
@@ -40,6 +39,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from posevote._io import parse_json
 from posevote.geometry import rotation_from_pose
 from posevote.results import Hypothesis
 
@@ -75,8 +75,10 @@ class Camera:
             ok = isinstance(value, (int, float, np.integer, np.floating)) \
                 and not isinstance(value, bool) and math.isfinite(float(value)) \
                 and abs(float(value)) < 1e7
-            if not ok or (name in ("fx", "fy") and float(value) <= 0):
-                kind = "a positive number" if name in ("fx", "fy") else "a finite number"
+            # A focal length under a pixel is no camera's (normalised intrinsics, a typo).
+            if not ok or (name in ("fx", "fy") and float(value) < 1.0):
+                kind = "a positive number (at least 1)" if name in ("fx", "fy") \
+                    else "a finite number"
                 raise ValueError(f"Camera.{name} must be {kind} of pixels, got {value!r}")
             object.__setattr__(self, name, float(value))
 
@@ -106,6 +108,12 @@ class Camera:
         if not isinstance(data, dict):
             raise ValueError(f"{where}: expected an object with fx, fy, cx, cy or K")
         try:
+            for key in ("width", "height"):
+                size = data.get(key)
+                if key in data and (isinstance(size, bool) or not isinstance(size, int)
+                                    or not 0 < size <= 100_000):
+                    raise ValueError(f"{key} must be a whole number of pixels from 1 to "
+                                     f"100000, got {size!r}")
             if "K" in data:
                 if set(data) - {"K", "width", "height"}:
                     raise ValueError(f"give K or fx, fy, cx, cy, not both ({sorted(data)})")
@@ -145,10 +153,11 @@ def read_camera(path: str | Path) -> Camera:
     if path.stat().st_size > 1 << 20:
         raise ValueError(f"{path}: too large for a camera file")
     try:
-        data = json.loads(path.read_text(encoding="utf-8-sig"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        text = path.read_text(encoding="utf-8-sig")
+    except UnicodeDecodeError as exc:
         raise ValueError(f"{path}: not a JSON camera file ({exc})") from None
-    return Camera.from_dict(data, where=str(path))
+    return Camera.from_dict(parse_json(text, str(path), kind="a JSON camera file"),
+                            where=str(path))
 
 
 def object_height_from_distances(box_heights_px: ArrayLike, distances_m: ArrayLike,

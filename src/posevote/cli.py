@@ -233,7 +233,8 @@ def train(source: Path, output: Path, layout: str, objects: str | None, cars: st
     from posevote.data import read_coil, read_epfl, read_poses_csv
     from posevote.estimator import PoseEstimator
 
-    _output_file(output, "-o")
+    # A model file, never one of the inputs (poses.csv, an image) under another name.
+    _output_file(output, "-o", suffixes=(".npz",))
     for value, option, wanted in ((objects, "--objects", "coil"), (cars, "--cars", "epfl"),
                                   (azimuth_step_deg, "--azimuth-step-deg", "coil")):
         if value is not None and layout != wanted and not (option == "--objects"
@@ -387,6 +388,9 @@ def estimate(model: Path, images: tuple[Path, ...], as_json: bool, as_csv: bool,
         paths = expand_images(images)
         if overlay is not None and len(paths) != 1:
             raise click.BadParameter(f"applies to one image; {len(paths)} given",
+                                     param_hint="--overlay")
+        if overlay is not None and overlay.resolve() == paths[0].resolve():
+            raise click.BadParameter(f"{overlay} is the image itself; give another file name",
                                      param_hint="--overlay")
         if len(paths) == 1 and out is None and not as_csv and max_objects == 1 \
                 and scheduler is None:

@@ -115,3 +115,39 @@ def test_bad_scenes_name_the_file(tmp_path, draw):
     r = CliRunner().invoke(cli, ["train", str(folder), "--layout", "bop", "--objects", "1,2",
                                  "-o", str(tmp_path / "m.npz")])
     assert r.exit_code == 2 and "one obj_id" in r.output
+
+
+@pytest.mark.parametrize(("edit", "message"), [
+    (lambda gt, cam, info: gt["0"][0].update(obj_id=True), "annotation 0: obj_id must be a whole"),
+    (lambda gt, cam, info: gt["0"][0].update(cam_t_m2c=[0, 0, 1e300]), "farther than 1000 m"),
+    (lambda gt, cam, info: cam["0"].update(cam_K=[1e-9, 0, 63.5, 0, 1e-9, 63.5, 0, 0, 1]),
+     "at least 1"),
+    (lambda gt, cam, info: info.update({"0": {"0": {"visib_fract": 1}}}),
+     "scene_gt_info.json, image 0: expected a list"),
+])
+def test_absurd_scene_values_are_refused(tmp_path, draw, edit, message):
+    folder = scene(tmp_path / "000001", draw, (0, 90))
+    files = [folder / n for n in ("scene_gt.json", "scene_camera.json", "scene_gt_info.json")]
+    data = [json.loads(f.read_text()) for f in files]
+    edit(*data)
+    for f, d in zip(files, data, strict=True):
+        f.write_text(json.dumps(d))
+    with pytest.raises(ValueError, match=message):
+        read_bop_scene(folder, obj_id=1)
+
+
+def test_annotation_files_nested_too_deep_twice_keyed_or_huge_are_refused(tmp_path, draw):
+    from posevote.data.bop import MAX_BOP_JSON_BYTES
+
+    folder = scene(tmp_path / "000001", draw, (0, 90))
+    gt = folder / "scene_gt.json"
+    gt.write_text('{"0": ' + "[" * 100_000 + "]" * 100_000 + "}")
+    with pytest.raises(ValueError, match="scene_gt.json: the JSON nests too deep"):
+        read_bop_scene(folder, obj_id=1)
+    gt.write_text('{"0": [], "0": []}')
+    with pytest.raises(ValueError, match="scene_gt.json: the key '0' appears twice"):
+        read_bop_scene(folder, obj_id=1)
+    with gt.open("wb") as fh:            # sparse: no disk is used
+        fh.truncate(MAX_BOP_JSON_BYTES + 1)
+    with pytest.raises(ValueError, match="scene_gt.json: .* over the limit"):
+        read_bop_scene(folder, obj_id=1)

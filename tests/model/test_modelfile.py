@@ -10,6 +10,10 @@ import pytest
 from posevote.model.modelfile import FORMAT_VERSION, OLDEST_VERSION, load_model, save_model
 from posevote.model.training import AppearanceModel, TrainedModel
 
+#: A per-view array of the wrong size: refused from its declared shape, or after reading it.
+SHAPES = "corrupt model file .*(inconsistent|one row per view)"
+CORRUPT_SHAPES = "bad.npz: " + SHAPES
+
 
 def _trained(model, **kw):
     return TrainedModel(model=model, full_model=model, viewpoint_kappa=3.0, **kw)
@@ -50,7 +54,7 @@ def test_view_origins_round_trip_and_are_checked(tmp_path, toy_model):
     np.testing.assert_array_equal(load_model(tmp_path / "deep.npz")[0].model.view_origin, factor)
     for bad in (origin[:-1], np.full_like(origin, np.nan), factor * [1, 1, -1]):
         _rewrite(tmp_path / "m.npz", tmp_path / "bad.npz", view_origin=bad)
-        with pytest.raises(ValueError, match="bad.npz: corrupt model file .*inconsistent"):
+        with pytest.raises(ValueError, match=CORRUPT_SHAPES):
             load_model(tmp_path / "bad.npz")
 
 
@@ -73,13 +77,13 @@ def test_view_templates_round_trip_and_are_checked(tmp_path, toy_model):
                 {"view_template": inf}, {"view_template_cell": -cell},
                 {"view_template_cell": cell[:-1]}):
         _rewrite(tmp_path / "m.npz", tmp_path / "bad.npz", **bad)
-        with pytest.raises(ValueError, match="bad.npz: corrupt model file .*inconsistent"):
+        with pytest.raises(ValueError, match=CORRUPT_SHAPES):
             load_model(tmp_path / "bad.npz")
     # One without the other.
     with np.load(tmp_path / "m.npz") as data:
         arrays = {k: data[k] for k in data.files if k != "view_template_cell"}
     np.savez(tmp_path / "half.npz", **arrays)
-    with pytest.raises(ValueError, match="half.npz: corrupt model file .*inconsistent"):
+    with pytest.raises(ValueError, match="half.npz: " + SHAPES):
         load_model(tmp_path / "half.npz")
 
 
@@ -97,7 +101,7 @@ def test_view_outlines_round_trip_and_are_checked(tmp_path, toy_model):
     flat[1] = 0.0                                       # no extent at all
     for bad in (outline[:-1], outline[:, :-1], nan, flat):
         _rewrite(tmp_path / "m.npz", tmp_path / "bad.npz", view_outline=bad)
-        with pytest.raises(ValueError, match="bad.npz: corrupt model file .*inconsistent"):
+        with pytest.raises(ValueError, match=CORRUPT_SHAPES):
             load_model(tmp_path / "bad.npz")
 
 
@@ -190,5 +194,5 @@ def test_appearance_arrays_round_trip_and_are_checked(tmp_path, toy_model):
                       ("objectness", np.zeros(3)),
                       ("view_descriptor", np.ones((2, length), np.float32))):
         _rewrite(tmp_path / "m.npz", tmp_path / "bad.npz", **{name: bad})
-        with pytest.raises(ValueError, match=f"bad.npz: corrupt model file \\({name}"):
+        with pytest.raises(ValueError, match=f"bad.npz: corrupt model file \\((array )?{name}"):
             load_model(tmp_path / "bad.npz")

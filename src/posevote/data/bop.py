@@ -35,6 +35,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from posevote._io import parse_json
 from posevote.camera import Camera, object_height_from_distances, origin_depth_factors
 from posevote.data.training_set import TrainingSet
 from posevote.geometry import pose_from_rotation
@@ -74,13 +75,26 @@ class BopScene:
     translations_m: NDArray[np.float64]
 
 
+#: The farthest an annotated object may be from the camera, metres (a unit error beyond).
+MAX_DISTANCE_M = 1000.0
+
+#: The largest BOP annotation file read (a large scene's ``scene_gt.json`` is a few MB;
+#: parsed, JSON takes about ten times its size in memory).
+MAX_BOP_JSON_BYTES = 100 << 20
+
+
 def _load_json(path: Path) -> dict[str, Any]:
     if not path.is_file():
         raise FileNotFoundError(f"BOP file not found: {path}")
+    size = path.stat().st_size
+    if size > MAX_BOP_JSON_BYTES:
+        raise ValueError(f"{path}: {size:,} bytes, over the limit of {MAX_BOP_JSON_BYTES:,} "
+                         "for a BOP annotation file")
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:
         raise ValueError(f"{path}: not JSON ({exc})") from None
+    data = parse_json(text, str(path))
     if not isinstance(data, dict):
         raise ValueError(f"{path}: expected an object keyed by image id")
     return data
@@ -183,8 +197,16 @@ def read_bop_scene(scene: str | Path, *, obj_id: int, min_visible: float = 0.1) 
             raise ValueError(f"{where}: expected a list of annotations")
         camera = _camera(cams, key, folder / "scene_camera.json")
         infos = info.get(key, [])
+        if not isinstance(infos, list):
+            raise ValueError(f"{info_path}, image {key}: expected a list of annotations")
         for index, ann in enumerate(annotations):
-            if not isinstance(ann, dict) or ann.get("obj_id") != obj_id:
+            if not isinstance(ann, dict):
+                continue
+            found = ann.get("obj_id")
+            if isinstance(found, bool) or not isinstance(found, int):
+                raise ValueError(f"{where}, annotation {index}: obj_id must be a whole number, "
+                                 f"got {found!r}")
+            if found != obj_id:
                 continue
             R = _numbers(ann.get("cam_R_m2c"), 9, where=f"{where}, cam_R_m2c").reshape(3, 3)
             if not (np.allclose(R @ R.T, np.eye(3), atol=1e-3) and np.linalg.det(R) > 0):
@@ -193,6 +215,10 @@ def read_bop_scene(scene: str | Path, *, obj_id: int, min_visible: float = 0.1) 
             if not t[2] > 0:
                 raise ValueError(f"{where}, annotation {index}: cam_t_m2c puts the object "
                                  f"behind the camera (z = {1000 * t[2]:g} mm)")
+            if not np.all(np.abs(t) <= MAX_DISTANCE_M):
+                raise ValueError(f"{where}, annotation {index}: cam_t_m2c is "
+                                 f"{(1000 * t).tolist()} mm, farther than "
+                                 f"{MAX_DISTANCE_M:g} m from the camera")
             entry = infos[index] if index < len(infos) and isinstance(infos[index], dict) else {}
             if float(entry.get("visib_fract", 1.0)) < min_visible:
                 continue

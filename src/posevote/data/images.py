@@ -28,18 +28,28 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+_DEFAULT_LIMIT = 40_000_000
 
-def _env_limit() -> int:
+
+def _env_limit() -> tuple[int, str | None]:
+    """The limit the environment sets, and what is wrong with it (reported when an image is
+    read, not at import: ``posevote presets`` reads none)."""
     text = os.environ.get("POSEVOTE_MAX_IMAGE_PIXELS", "")
+    if not text.strip():
+        return _DEFAULT_LIMIT, None
     try:
-        return int(float(text)) if text.strip() else 40_000_000
+        value = float(text)
     except ValueError:
-        raise ValueError(f"POSEVOTE_MAX_IMAGE_PIXELS must be a number of pixels, got {text!r}"
-                         ) from None
+        value = float("nan")
+    if not (np.isfinite(value) and 1 <= value <= 1e12):
+        return _DEFAULT_LIMIT, (f"the environment variable POSEVOTE_MAX_IMAGE_PIXELS must be a "
+                                f"number of pixels from 1 to 1e12, got {text!r}")
+    return int(value), None
 
 
 #: The most pixels (height x width) an image may hold.
-MAX_IMAGE_PIXELS: int = _env_limit()
+MAX_IMAGE_PIXELS: int
+MAX_IMAGE_PIXELS, _ENV_ERROR = _env_limit()
 
 #: Channel orders a colour array may be given in.
 CHANNEL_ORDERS = ("rgb", "bgr")
@@ -51,6 +61,8 @@ _FLOAT_SLACK = 0.05
 
 def _check_size(name: str, height: int, width: int) -> None:
     limit = MAX_IMAGE_PIXELS
+    if _ENV_ERROR is not None and limit == _DEFAULT_LIMIT:   # not set in code since
+        raise ValueError(f"{name}: {_ENV_ERROR}")
     if height * width > limit:
         raise ValueError(
             f"{name}: the image is {width} x {height} = {height * width:,} pixels, over the limit "

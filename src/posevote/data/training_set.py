@@ -166,10 +166,16 @@ def _inside(folder: Path, name: str, *, path: Path, row: int, column: str,
     """``folder / name``, refused if ``name`` leads outside ``folder`` (unless allowed)."""
     relative = Path(name)
     escapes = relative.is_absolute() or os.path.normpath(name).split(os.sep)[0] == ".."
+    hint = "(allow_outside_paths=True, or --allow-outside-paths, to permit it)"
     if escapes and not allow_outside:
         raise ValueError(f"{path}, row {row}: column {column!r} names {name!r}, outside the "
-                         "training folder; paths must be relative and stay inside it "
-                         "(allow_outside_paths=True, or --allow-outside-paths, to permit it)")
+                         f"training folder; paths must be relative and stay inside it {hint}")
+    # The rule holds for the real file: a link inside the folder may lead out of it.
+    if not allow_outside and not (folder / relative).resolve().is_relative_to(
+            folder.resolve()):
+        raise ValueError(f"{path}, row {row}: column {column!r} names {name!r}, a link that "
+                         f"leads outside the training folder, to "
+                         f"{(folder / relative).resolve()} {hint}")
     return folder / relative
 
 
@@ -230,8 +236,9 @@ def read_poses_csv(folder: str | Path, *, allow_outside_paths: bool = False) -> 
         Folder holding ``poses.csv`` and the images it names.
     allow_outside_paths : bool, optional
         Let image and mask paths be absolute or lead out of ``folder``
-        (``../``); refused by default, so that a poses file cannot make
-        posevote read files elsewhere.
+        (``../``, or a symbolic link to a file or folder elsewhere); refused
+        by default, so that a poses file cannot make posevote read files
+        elsewhere.
 
     Returns
     -------

@@ -60,8 +60,9 @@ class SearchOptions(Options):
     scale_range : (float, float), default (0.9, 1.1)
         Scales searched, relative to the training images.
     scale_steps : int, default 3
-        Scales searched (log-spaced). Keep the log-scale step near the
-        in-plane step in radians when widening the range.
+        Scales searched (log-spaced; one where ``scale_range`` is one value).
+        Keep the log-scale step near the in-plane step in radians when
+        widening the range.
     object_kernel : bool, default False
         Fix the position kernel in object units: the test features are
         divided by each searched scale and searched at scale 1, so that
@@ -160,7 +161,8 @@ class SearchOptions(Options):
         n_a = int(np.floor((a_hi - a_lo) / step + 1e-9)) + 1
         inplanes = (a_lo + a_hi) / 2.0 + (np.arange(n_a) - (n_a - 1) / 2.0) * step
         lo, hi = self.scale_range
-        scales = np.geomspace(lo, hi, self.scale_steps) if self.scale_steps > 1 \
+        # One scale where the range is one value: repeated scales are no grid to fit on.
+        scales = np.geomspace(lo, hi, self.scale_steps) if self.scale_steps > 1 and hi > lo \
             else np.array([np.sqrt(lo * hi)])
         return inplanes, scales
 

@@ -31,12 +31,13 @@ from __future__ import annotations
 
 import json
 import zipfile
+import zlib
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from posevote._io import atomic_open
+from posevote._io import atomic_open, parse_json
 from posevote.camera import check_object_height
 from posevote.features.hog import descriptor_length
 from posevote.model.density import PoseModel
@@ -155,7 +156,7 @@ def load_model(path: str | Path) -> tuple[TrainedModel, dict[str, Any]]:
         with np.load(path, allow_pickle=False) as data:
             if "header" not in data.files:
                 raise ValueError(f"{path}: not a posevote model file (no header)")
-            header = json.loads(bytes(data["header"]).decode("utf-8"))
+            header = parse_json(bytes(data["header"]).decode("utf-8"), f"{path}: header")
             if not isinstance(header, dict) or header.get("format") != FORMAT_NAME:
                 raise ValueError(f"{path}: not a posevote model file")
             version = header.get("version")
@@ -195,7 +196,7 @@ def load_model(path: str | Path) -> tuple[TrainedModel, dict[str, Any]]:
             raise
         raise ValueError(f"{path}: corrupt or truncated model file ({exc})") from None
     except (zipfile.BadZipFile, OSError, KeyError, EOFError, json.JSONDecodeError,
-            UnicodeDecodeError) as exc:
+            UnicodeDecodeError, zlib.error) as exc:
         raise ValueError(f"{path}: not a posevote model file, or truncated/corrupt "
                          f"({type(exc).__name__}: {exc})") from None
     _check_header(path, header)
@@ -276,7 +277,9 @@ def _version_5_params(params: dict[str, Any], n_instances: int) -> dict[str, Any
 
 
 def _check_sizes(path: Path, data: Any) -> None:
-    """Refuse arrays whose declared size is past the limits, before decompressing them."""
+    """Refuse arrays whose declared size, shape or type is past the limits or does not fit
+    the others', before decompressing any of them."""
+    declared: dict[str, tuple[tuple[int, ...], np.dtype]] = {}
     for name in data.files:
         with data.zip.open(f"{name}.npy") as fh:
             try:
@@ -292,6 +295,38 @@ def _check_sizes(path: Path, data: Any) -> None:
                 or (name == "view_azimuth" and n > MAX_VIEWS):
             raise ValueError(f"{path}: corrupt model file (array {name} declares shape {shape} "
                              f"of {dtype}, past the limits)")
+        if dtype.kind not in "biuf":
+            raise ValueError(f"{path}: corrupt model file (array {name} holds {dtype}, not "
+                             "real numbers)")
+        declared[name] = (tuple(shape), dtype)
+
+    def refuse(name: str, expected: str) -> None:
+        shape, dtype = declared[name]
+        raise ValueError(f"{path}: corrupt model file (array {name} declares shape {shape} of "
+                         f"{dtype}; expected {expected})")
+
+    for prefix in ("", "full_"):
+        if f"{prefix}theta" not in declared:
+            continue
+        if len(declared[f"{prefix}theta"][0]) != 1:
+            refuse(f"{prefix}theta", "one angle per feature")
+        m = declared[f"{prefix}theta"][0][0]
+        for name, shape in (("xy", (m, 2)), ("view", (m,)), ("weight", (m,))):
+            if f"{prefix}{name}" in declared and declared[f"{prefix}{name}"][0] != shape:
+                refuse(f"{prefix}{name}", f"shape {shape}, as {prefix}theta's {m} features")
+        if f"{prefix}view" in declared and declared[f"{prefix}view"][1].kind not in "iu":
+            refuse(f"{prefix}view", "whole numbers (view indices)")
+    if "view_azimuth" in declared:
+        if len(declared["view_azimuth"][0]) != 1:
+            refuse("view_azimuth", "one azimuth per view")
+        k = declared["view_azimuth"][0][0]
+        for name, (shape, _) in declared.items():
+            # A per-view array holds at most a template's worth of numbers per view.
+            if name.startswith("view_") and (not shape or shape[0] != k
+                                            or np.prod(shape, dtype=np.float64) > k * 65536):
+                refuse(name, f"one row per view ({k}), of at most 65536 numbers")
+    if "header" in declared and np.prod(declared["header"][0], dtype=np.float64) > 16 << 20:
+        refuse("header", "at most 16 MiB of JSON")
 
 
 def _check_header(path: Path, header: dict[str, Any]) -> None:
@@ -307,6 +342,12 @@ def _check_header(path: Path, header: dict[str, Any]) -> None:
                          f"positive number, got {ref!r})")
     if not isinstance(header.get("category", ""), str):
         raise ValueError(f"{path}: corrupt model file (header category must be a string)")
+
+
+#: The largest magnitude each array may hold: angles within two turns (radians), pixels
+#: and weights within a million.
+_BOUNDS = {"xy": 1e6, "theta": 4 * np.pi, "weight": 1e6, "view_azimuth": 4 * np.pi,
+           "view_elevation": np.pi, "view_box": 1e6}
 
 
 def _build(path: Path, arrays: dict[str, np.ndarray], header: dict[str, Any]) -> PoseModel:
@@ -357,6 +398,11 @@ def _build(path: Path, arrays: dict[str, np.ndarray], header: dict[str, Any]) ->
         if not np.all(np.isfinite(arrays[name])):
             raise ValueError(f"{path}: corrupt model file (array {name} has values that are "
                              "not finite)")
+        # Finite but absurd (angles in other units, pixels past any image): corrupt as well.
+        bound = _BOUNDS[name]
+        if arrays[name].size and float(np.abs(arrays[name]).max()) > bound:
+            raise ValueError(f"{path}: corrupt model file (array {name} has values past "
+                             f"{bound:g})")
     if np.any(arrays["view_box"] <= 0):
         raise ValueError(f"{path}: corrupt model file (array view_box has boxes of zero size)")
     if np.any(arrays["weight"] < 0):

@@ -337,6 +337,14 @@ def _check_origins(origins: ArrayLike, k: int) -> NDArray[np.float64]:
         row = int(np.flatnonzero(arr[:, 2] <= 0)[0])
         raise ValueError(f"origins: row {row} has a depth factor {arr[row, 2]:g}; it must be "
                          "positive")
+    # Finite but absurd: pixels past any image, a depth factor in other units.
+    far = np.any(np.abs(arr[:, :2]) > 1e6, axis=1)
+    if arr.shape[1] == 3:
+        far |= ~((arr[:, 2] >= 1e-3) & (arr[:, 2] <= 1e3))
+    if far.any():
+        row = int(np.flatnonzero(far)[0])
+        raise ValueError(f"origins: row {row} is {arr[row].tolist()}; expected pixels within "
+                         "1e6 and a depth factor from 1e-3 to 1e3")
     return arr
 
 
