@@ -388,6 +388,32 @@ def test_a_png_bomb_is_refused_before_decoding(model, tmp_path):
     assert time.perf_counter() - start < 60
 
 
+def _rle_scanline(width: int) -> bytes:
+    """One Radiance scanline of ``width`` black pixels, run-length coded."""
+    runs = b"".join(bytes([128 + min(127, width - i), 0]) for i in range(0, width, 127))
+    return bytes([2, 2, width >> 8, width & 255]) + runs * 4
+
+
+@pytest.mark.parametrize("kind", ["hdr", "pfm"])
+def test_formats_pillow_does_not_read_are_sized_before_decoding(model, tmp_path, kind):
+    bomb = tmp_path / f"bomb.{kind}"
+    if kind == "hdr":   # 16000 x 16000 pixels in 8 MB
+        bomb.write_bytes(b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 16000 +X 16000\n"
+                         + _rle_scanline(16000) * 16000)
+    else:
+        bomb.write_bytes(b"PF\n16000 16000\n-1.0\n" + b"\0" * 1000)
+    proc = _capped("from posevote.cli import main; import sys; "
+                   f"sys.argv = ['posevote', 'estimate', {str(model)!r}, {str(bomb)!r}]; main()")
+    assert proc.returncode == 1, proc.stderr
+    assert f"bomb.{kind}" in proc.stderr and "over the limit" in proc.stderr
+    # A small one is read.
+    from posevote.data import read_image
+
+    small = tmp_path / f"small.{kind}"
+    cv2.imwrite(str(small), np.random.default_rng(0).random((20, 30, 3)).astype(np.float32))
+    assert read_image(small).shape == (20, 30)
+
+
 def test_the_pixel_limit_is_configurable(model, image, tmp_path):
     env = {**os.environ, "POSEVOTE_MAX_IMAGE_PIXELS": "1000"}
     proc = subprocess.run([sys.executable, "-m", "posevote.cli", "estimate", str(model),

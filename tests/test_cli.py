@@ -128,9 +128,9 @@ def test_usage_errors(model_file, test_image):
                          ).exit_code == 2
     result = runner.invoke(cli, ["estimate", str(model_file), str(test_image), "--threads", "0"])
     assert result.exit_code == 2 and "--threads" in result.output
-    result = runner.invoke(cli, ["train", "x", "-o", "y", "--param", "nonsense=1"])
+    result = runner.invoke(cli, ["train", "x", "-o", "y.npz", "--param", "nonsense=1"])
     assert result.exit_code == 2 and "unknown estimator parameter" in result.output
-    result = runner.invoke(cli, ["train", "x", "-o", "y", "--layout", "coil"])
+    result = runner.invoke(cli, ["train", "x", "-o", "y.npz", "--layout", "coil"])
     assert result.exit_code == 2 and "--objects" in result.output
 
 

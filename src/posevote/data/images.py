@@ -146,11 +146,33 @@ def as_gray_float(image: NDArray, *, name: str = "image", channels: str = "rgb"
     return np.ascontiguousarray(scaled)
 
 
+_RADIANCE_SIZE = re.compile(rb"[-+]([YX]) +(\d+) +[-+]([YX]) +(\d+)")
+
+
+def _other_header(data: bytes) -> tuple[int, int] | None:
+    """``(height, width)`` from the header of the formats OpenCV reads and Pillow does not
+    (Radiance HDR, PFM); None for any other."""
+    if data.startswith(b"#?"):
+        end = data.find(b"\n\n", 0, 1 << 16)
+        line = data[end + 2:end + 2 + 64].split(b"\n", 1)[0] if end >= 0 else b""
+        found = _RADIANCE_SIZE.match(line)
+        if found is None:
+            return None
+        sizes = {found.group(1): int(found.group(2)), found.group(3): int(found.group(4))}
+        return (sizes[b"Y"], sizes[b"X"]) if set(sizes) == {b"X", b"Y"} else None
+    if data[:2] in (b"PF", b"Pf") and data[2:3].isspace():
+        words = data[3:128].split()
+        if len(words) >= 2 and words[0].isdigit() and words[1].isdigit():
+            return int(words[1]), int(words[0])
+    return None
+
+
 def _check_file(path: Path, data: bytes) -> str | None:
     """Refuse an image whose header is over the pixel limit, or that decodes with a warning.
 
-    Pillow reads the header without decoding; formats it does not know are
-    left to OpenCV (their size is checked once decoded). A JPEG is not
+    Pillow reads the header without decoding; of the formats it does not
+    know, Radiance HDR and PFM headers are read here and any other is refused
+    (its size cannot be known before OpenCV decodes it). A JPEG is not
     decoded here: libjpeg's warnings reach :func:`_decode`, and a cut one
     does not decode there. Returns Pillow's name of the format (None if it
     does not know it).
@@ -169,6 +191,13 @@ def _check_file(path: Path, data: bytes) -> str | None:
                     im.load()
                 return im.format
         except UnidentifiedImageError:
+            shape = _other_header(data)
+            if shape is None:
+                raise ValueError(f"{path}: cannot decode this file as an image (unreadable, "
+                                 "not an image, or a format whose size cannot be read before "
+                                 "decoding it: Pillow's formats, Radiance HDR and PFM can)"
+                                 ) from None
+            _check_size(str(path), *shape)
             return None
         except Image.DecompressionBombError as exc:
             raise ValueError(f"{path}: the image is over the pixel limit of "
