@@ -112,3 +112,37 @@ def test_batch_options(model, frames, tmp_path):
     rec = json.loads(r.output.splitlines()[0])
     assert len(rec["best"]["R_cam_obj"]) == 3 and "t_cam_obj_m" not in rec["best"]
     assert (tmp_path / "res" / "estimates.csv").is_file()
+
+
+def test_an_image_replaced_since_its_estimate_is_redone(model, frames, tmp_path, draw):
+    import shutil
+
+    folder = tmp_path / "frames"
+    shutil.copytree(frames, folder)
+    out = tmp_path / "out"
+    first = list(estimate_images(model, expand_images([folder]), out=out))
+    # Another photo under the same name, the others untouched.
+    cv2.imwrite(str(folder / "f1.png"), (draw(np.radians(300)) * 255).astype(np.uint8))
+    said = []
+    again = list(estimate_images(model, expand_images([folder]), out=out, log=said.append))
+    assert any("1 image(s) changed" in m and "f1.png" in m for m in said)
+    assert again[0]["best"] == first[0]["best"] and again[2]["best"] == first[2]["best"]
+    assert again[1]["best"] != first[1]["best"]
+    kept = [json.loads(line) for line in (out / "estimates.jsonl").read_text().splitlines()]
+    assert sorted(r["image"] for r in kept) == sorted(r["image"] for r in first)
+    assert all("stamp" not in r for r in again)
+    # Unchanged since: nothing redone.
+    said.clear()
+    list(estimate_images(model, expand_images([folder]), out=out, log=said.append))
+    assert not any("changed" in m for m in said)
+
+
+def test_csv_on_stdout_quotes_names_with_commas_and_newlines(model, frames, tmp_path):
+    import shutil
+
+    odd = tmp_path / "a,b\nc.png"
+    shutil.copy(frames / "f0.png", odd)
+    r = invoke("estimate", model, odd, frames / "f1.png", "--csv")
+    assert r.exit_code == 0, r.output
+    rows = list(csv.reader(io.StringIO(r.output)))
+    assert len(rows) == 3 and rows[1][0] == str(odd)

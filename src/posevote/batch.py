@@ -4,7 +4,8 @@
 in the order given, whatever the number of workers. With an output folder
 the records are appended to ``estimates.jsonl`` one line at a time (flushed
 and synced), so a killed run keeps what it finished and a rerun on the same
-folder skips those images; ``estimates.csv`` (one row per image, the best
+folder skips those images (unless an image file changed since: its size or
+modification time, recorded with its estimate); ``estimates.csv`` (one row per image, the best
 mode) is written atomically at the end. ``batch.json`` holds what the
 records were made with (the model file's hash and the settings): records
 made with another model or other settings are discarded and redone.
@@ -219,12 +220,21 @@ def estimate_images(model: str | Path, images: Sequence[Path], *,
             records_path.unlink()
         atomic_write_text(marker, json.dumps({"fingerprint": current, "model": str(model)}) + "\n")
         repair_records(records_path)
-        done = {r["image"]: r for r in read_records(records_path)}
+        stamps = {n: _stamp(n) for n in names}
+        kept = read_records(records_path)
+        changed = [r["image"] for r in kept
+                   if r["image"] in stamps and r.get("stamp") != stamps[r["image"]]]
+        if changed:
+            log(f"{len(changed)} image(s) changed since their estimate (first: {changed[0]}): "
+                "redone")
+            kept = [r for r in kept if r["image"] not in set(changed)]
+            atomic_write_text(records_path, "".join(json.dumps(r) + "\n" for r in kept))
+        done = {r["image"]: {k: v for k, v in r.items() if k != "stamp"} for r in kept}
         if done:
             log(f"resuming: {sum(n in done for n in names)} of {len(names)} images already done")
         with records_path.open("a", encoding="utf-8") as fh:
             yield from _run(str(model), settings, camera, max_objects, names, jobs, done, fh,
-                            progress, scheduler)
+                            progress, scheduler, stamps)
         text = io.StringIO()
         writer = csv.writer(text, lineterminator="\n")
         writer.writerow(CSV_FIELDS)
@@ -233,10 +243,21 @@ def estimate_images(model: str | Path, images: Sequence[Path], *,
         atomic_write_text(folder / "estimates.csv", text.getvalue())
 
 
+def _stamp(name: str) -> str:
+    """What tells a file's content changed without reading it: its size and change time."""
+    try:
+        st = os.stat(name)
+    except OSError:
+        return ""
+    return f"{st.st_size}:{st.st_mtime_ns}"
+
+
 def _run(model: str, settings: dict[str, Any], camera: dict[str, float] | None,
          max_objects: int, names: list[str], jobs: int, done: dict[str, dict[str, Any]], fh: Any,
-         progress: Callable[[int, int], None] | None, scheduler: Any) -> Iterator[dict[str, Any]]:
-    """The records of ``names`` in order: finished ones from ``done``, the others estimated."""
+         progress: Callable[[int, int], None] | None, scheduler: Any,
+         stamps: dict[str, str] | None = None) -> Iterator[dict[str, Any]]:
+    """The records of ``names`` in order: finished ones from ``done``, the others estimated
+    (written to ``fh`` with the file's stamp)."""
     todo = [n for n in names if n not in done]
     count = len(names) - len(todo)
     if progress is not None:
@@ -249,7 +270,7 @@ def _run(model: str, settings: dict[str, Any], camera: dict[str, float] | None,
             continue
         rec = next(new)
         if fh is not None:
-            fh.write(json.dumps(rec) + "\n")
+            fh.write(json.dumps({**rec, "stamp": (stamps or {}).get(name, "")}) + "\n")
             fh.flush()
             os.fsync(fh.fileno())
         count += 1
@@ -271,7 +292,9 @@ def estimate_bop_scene(estimator: Any, scene: str | Path, *, obj_id: int, max_ob
     from posevote.data.bop import read_bop_images, results_rows
 
     folder = Path(scene)
-    scene_id = int(folder.name) if folder.name.isdigit() else 0
+    if not folder.name.isdigit():
+        raise ValueError(f"{folder}: a BOP scene folder is named by its id (000001)")
+    scene_id = int(folder.name)
     lines = []
     for im_id, image, camera in read_bop_images(folder):
         start = time.perf_counter()

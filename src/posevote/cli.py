@@ -480,9 +480,10 @@ def _estimate_many(model: Path, paths: list[Path], changes: dict[str, Any], came
                 if as_json:
                     click.echo(json.dumps(rec))
                 elif as_csv:
+                    # The row's own terminator, so that a name holding a newline is quoted.
                     line = io.StringIO()
-                    csv.writer(line, lineterminator="").writerow(csv_row(rec))
-                    click.echo(line.getvalue())
+                    csv.writer(line, lineterminator="\n").writerow(csv_row(rec))
+                    click.echo(line.getvalue(), nl=False)
                 elif rec.get("best"):
                     b = rec["best"]
                     label = f" object {rec['object'] + 1}" if max_objects > 1 else ""

@@ -69,3 +69,20 @@ def test_load_image_takes_a_path_or_an_array(tmp_path):
     np.testing.assert_allclose(load_image(tmp_path / "g.png"), load_image(grey))
     with pytest.raises(ValueError, match="frame"):
         load_image(np.zeros((2, 2, 7)), name="frame")
+
+
+@pytest.mark.parametrize("orientation", range(1, 9))
+def test_a_photographs_exif_orientation_is_applied(tmp_path, orientation):
+    from PIL import Image, ImageOps
+
+    pixels = (np.random.default_rng(0).random((40, 60)) * 255).astype(np.uint8)
+    im = Image.fromarray(pixels)
+    exif = im.getexif()
+    exif[0x0112] = orientation
+    path = tmp_path / "photo.jpg"
+    im.save(path, exif=exif, quality=95)
+    with Image.open(path) as shown:
+        upright = np.asarray(ImageOps.exif_transpose(shown).convert("L"), dtype=np.float64)
+    got = read_image(path)
+    assert got.shape == ((40, 60) if orientation < 5 else (60, 40))
+    np.testing.assert_allclose(got, upright / 255.0, atol=1e-12)

@@ -23,6 +23,7 @@ import tempfile
 import threading
 import warnings
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -146,6 +147,20 @@ def as_gray_float(image: NDArray, *, name: str = "image", channels: str = "rgb"
     return np.ascontiguousarray(scaled)
 
 
+_ORIENTATION_TAG = 0x0112
+
+#: How each EXIF orientation's stored pixels are turned upright (as a camera app shows them).
+_UPRIGHT: dict[int, Any] = {
+    1: lambda a: a,
+    2: lambda a: a[:, ::-1],
+    3: lambda a: a[::-1, ::-1],
+    4: lambda a: a[::-1],
+    5: lambda a: np.swapaxes(a, 0, 1),
+    6: lambda a: np.rot90(a, -1),
+    7: lambda a: np.swapaxes(a, 0, 1)[::-1, ::-1],
+    8: lambda a: np.rot90(a, 1),
+}
+
 _RADIANCE_SIZE = re.compile(rb"[-+]([YX]) +(\d+) +[-+]([YX]) +(\d+)")
 
 
@@ -167,7 +182,7 @@ def _other_header(data: bytes) -> tuple[int, int] | None:
     return None
 
 
-def _check_file(path: Path, data: bytes) -> str | None:
+def _check_file(path: Path, data: bytes) -> tuple[str | None, int]:
     """Refuse an image whose header is over the pixel limit, or that decodes with a warning.
 
     Pillow reads the header without decoding; of the formats it does not
@@ -175,7 +190,7 @@ def _check_file(path: Path, data: bytes) -> str | None:
     (its size cannot be known before OpenCV decodes it). A JPEG is not
     decoded here: libjpeg's warnings reach :func:`_decode`, and a cut one
     does not decode there. Returns Pillow's name of the format (None if it
-    does not know it).
+    does not know it) and the EXIF orientation (1: as stored).
     """
     from PIL import Image, UnidentifiedImageError
 
@@ -189,7 +204,8 @@ def _check_file(path: Path, data: bytes) -> str | None:
                 _check_size(str(path), height, width)
                 if im.format != "JPEG":
                     im.load()
-                return im.format
+                orientation = im.getexif().get(_ORIENTATION_TAG, 1)
+                return im.format, orientation if orientation in _UPRIGHT else 1
         except UnidentifiedImageError:
             shape = _other_header(data)
             if shape is None:
@@ -198,7 +214,7 @@ def _check_file(path: Path, data: bytes) -> str | None:
                                  "decoding it: Pillow's formats, Radiance HDR and PFM can)"
                                  ) from None
             _check_size(str(path), *shape)
-            return None
+            return None, 1
         except Image.DecompressionBombError as exc:
             raise ValueError(f"{path}: the image is over the pixel limit of "
                              f"{MAX_IMAGE_PIXELS:,} and Pillow's ({exc})") from None
@@ -247,7 +263,8 @@ def read_image(path: str | Path) -> NDArray[np.float64]:
     """Read an image file as grey levels in ``[0, 1]``.
 
     Grey, RGB, RGBA, 8- and 16-bit files in any format OpenCV reads; see
-    the module's limits.
+    the module's limits. A photograph's EXIF orientation is applied: the
+    pixels come upright, as a camera app shows them.
 
     Parameters
     ----------
@@ -279,13 +296,15 @@ def read_image(path: str | Path) -> NDArray[np.float64]:
         data = path.read_bytes()
     except OSError as exc:
         raise ValueError(f"{path}: cannot read the file ({exc.strerror or exc})") from None
-    known = _check_file(path, data)
+    known, orientation = _check_file(path, data)
     raw = _decode(path, data) if data else None
     if raw is None and known is not None:
         raise ValueError(f"{path}: the image file is damaged or truncated (its {known} data "
                          "do not decode)")
     if raw is None:
         raise ValueError(f"{path}: cannot decode this file as an image (unreadable or not an image)")
+    # The pixels as the photograph is seen (OpenCV's IMREAD_UNCHANGED keeps them as stored).
+    raw = np.ascontiguousarray(_UPRIGHT[orientation](raw))
     # OpenCV decodes colour as BGR(A).
     return as_gray_float(raw, name=str(path), channels="bgr")
 
