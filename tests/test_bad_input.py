@@ -482,6 +482,7 @@ def make_csv(folder: Path, tmp_path: Path, text: str | bytes, *, name="poses.csv
     ("image,azimuth_deg,box_x,box_y,box_w,box_h\nv00.png,0,500,500,50,50\n", "is not inside"),
     ("image,azimuth_deg\nmissing.png,0\n", "row 2: image file not found"),
     ("image,azimuth_deg\nv00.png,0,\n", "row 2: more fields"),
+    ("image,azimuth_deg,instance\nv00.png,0,a\nv01.png,20,\n", "row 3: the instance column"),
 ])
 def test_bad_poses_csv(folder, tmp_path, text, message):
     source = make_csv(folder, tmp_path, text)
@@ -772,6 +773,13 @@ def test_a_link_out_of_the_training_folder_is_refused(folder, tmp_path):
     with pytest.raises(ValueError, match="row 3: column 'image' names 'sub/s.png', a link"):
         read_poses_csv(source)
     assert len(read_poses_csv(source, allow_outside_paths=True)) == 2
+
+
+def test_one_image_under_two_names_is_refused(folder, tmp_path):
+    source = make_csv(folder, tmp_path, "image,azimuth_deg\nv01.png,20\nalias.png,200\n")
+    (source / "alias.png").symlink_to(source / "v01.png")
+    r = invoke("train", source, "-o", tmp_path / "m.npz")
+    assert r.exit_code == 1 and "row 3: image 'alias.png' is already given in row 2" in r.output
 
 
 def test_a_link_inside_the_training_folder_is_read(folder, tmp_path):

@@ -304,7 +304,8 @@ def read_poses_csv(folder: str | Path, *, allow_outside_paths: bool = False) -> 
             raise ValueError(f"{path}, row {row_number}: empty 'image'")
         image_path = _inside(folder, name, path=path, row=row_number, column="image",
                              allow_outside=allow_outside_paths)
-        key = os.path.normpath(str(image_path))
+        # One file under two names (a link) is one image too.
+        key = str(image_path.resolve())
         if key in first_row:
             raise ValueError(f"{path}, row {row_number}: image {name!r} is already given in row "
                              f"{first_row[key]}; give each image one row")
@@ -360,6 +361,11 @@ def read_poses_csv(folder: str | Path, *, allow_outside_paths: bool = False) -> 
         images.append(image_path)
     if not images:
         raise ValueError(f"{path}: no rows; a training set needs at least one image")
+    named = [bool(i) for i in instances]
+    if any(named) and not all(named):
+        row = named.index(False) + 2
+        raise ValueError(f"{path}, row {row}: the instance column is empty here and filled in "
+                         "other rows; name every row's instance, or none")
     if len(categories) > 1:
         raise ValueError(f"{path}: rows name several categories ({sorted(categories)}); "
                          "train one model per category")
