@@ -81,3 +81,46 @@ def test_thread_map_keeps_the_order_and_raises_in_place(threads):
             got.append(value)
     assert got == [i * i for i in range(7)]
     assert list(thread_map(lambda i: -i, range(50), threads)) == [-i for i in range(50)]
+
+
+def test_two_interrupts_end_the_parent_and_its_workers(tmp_path):
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    started = tmp_path / "started"
+    script = ("import time, pathlib\n"
+              "from posevote._parallel import ordered_map\n"
+              "for i, _ in enumerate(ordered_map(time.sleep, [(0.5,)] * 200, jobs=2)):\n"
+              f"    pathlib.Path({str(started)!r}).write_text(str(i))\n")
+    proc = subprocess.Popen([sys.executable, "-c", script], start_new_session=True,
+                            stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 60
+    while not started.exists() and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert started.exists()
+    os.killpg(proc.pid, signal.SIGINT)
+    time.sleep(0.2)
+    os.killpg(proc.pid, signal.SIGINT)
+    try:
+        assert proc.wait(timeout=20) != 0
+    finally:
+        leftover = subprocess.run(["pgrep", "-g", str(proc.pid)], capture_output=True,
+                                  text=True).stdout.split()
+        for pid in leftover:
+            os.kill(int(pid), signal.SIGKILL)
+    assert not leftover   # no worker outlives its parent
+
+
+def test_a_consumer_that_stops_early_leaves_no_worker():
+    import multiprocessing
+    import time
+
+    before = set(multiprocessing.active_children())     # a Dask cluster's, from other tests
+    results = ordered_map(time.sleep, [(0.2,)] * 50, jobs=2)
+    next(results)
+    results.close()
+    assert not [p for p in multiprocessing.active_children()
+                if p.is_alive() and p not in before and "Dask" not in p.name]

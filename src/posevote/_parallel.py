@@ -11,6 +11,7 @@ are those of the local pool, whatever runs them.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import os
 import sys
@@ -30,14 +31,17 @@ def _init_worker(parent: int) -> None:
     parent had used OpenCV's threads hangs. On Linux the kernel kills the
     worker when its parent dies, however it dies (SIGTERM, SIGKILL).
     """
+    import signal
+
     if sys.platform.startswith("linux"):
         import ctypes
-        import signal
 
         pr_set_pdeathsig = 1
         ctypes.CDLL(None, use_errno=True).prctl(pr_set_pdeathsig, int(signal.SIGKILL))
     if os.getppid() != parent:   # the parent died before the line above
         os._exit(1)
+    # Ctrl-C is the parent's to handle: it stops the workers (:func:`_stop`).
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     os.environ["NUMBA_NUM_THREADS"] = "1"
     threadpool_limits(1)
 
@@ -71,11 +75,29 @@ def ordered_map(fn: Callable[..., Any], tasks: Iterable[tuple[Any, ...]], *, job
     threads = cv2.getNumThreads()
     cv2.setNumThreads(1)   # before the workers fork: set in a forked child it hangs
     pool = worker_pool(jobs)
+    finished = False
     try:
         yield from pool.map(fn, *zip(*tasks, strict=True), chunksize=1)
+        finished = True
     finally:
-        pool.shutdown(wait=True, cancel_futures=True)
+        if finished:
+            pool.shutdown(wait=True)
+        else:
+            _stop(pool)
         cv2.setNumThreads(threads)
+
+
+def _stop(pool: ProcessPoolExecutor) -> None:
+    """End a pool at once (an interrupt, an error, a consumer that stopped early): its workers
+    are killed, so that nothing waits on the images they were estimating."""
+    processes = list((getattr(pool, "_processes", None) or {}).values())
+    pool.shutdown(wait=False, cancel_futures=True)
+    for process in processes:
+        with contextlib.suppress(OSError, ValueError):
+            process.kill()
+    for process in processes:
+        with contextlib.suppress(OSError, ValueError, AssertionError):
+            process.join(timeout=5)
 
 
 def _on_dask(fn: Callable[..., Any], tasks: list[tuple[Any, ...]], scheduler: Any
