@@ -122,5 +122,38 @@ def test_a_consumer_that_stops_early_leaves_no_worker():
     results = ordered_map(time.sleep, [(0.2,)] * 50, jobs=2)
     next(results)
     results.close()
-    assert not [p for p in multiprocessing.active_children()
+    deadline = time.monotonic() + 5
+    while time.monotonic() < deadline:
+        left = [p for p in multiprocessing.active_children()
                 if p.is_alive() and p not in before and "Dask" not in p.name]
+        if not left:
+            break
+        time.sleep(0.1)
+    assert not left
+
+
+@pytest.mark.parametrize("address", ["not a url", "http://127.0.0.1:80", "tcp://host"])
+def test_a_malformed_scheduler_address_is_refused_at_once(address):
+    pytest.importorskip("distributed")
+    import time
+
+    start = time.monotonic()
+    with pytest.raises(ValueError, match="cannot use the Dask scheduler"):
+        list(ordered_map(abs, [(1,), (2,)], scheduler=address))
+    assert time.monotonic() - start < 10
+
+
+def test_a_server_that_is_not_a_scheduler_times_out(monkeypatch):
+    pytest.importorskip("distributed")
+    import socket
+
+    import posevote._parallel as parallel
+
+    monkeypatch.setattr(parallel, "CONNECT_SECONDS", 2.0)
+    # A listening socket that never answers, as a web server does to a Dask handshake.
+    with socket.socket() as server:
+        server.bind(("127.0.0.1", 0))
+        server.listen(8)
+        with pytest.raises(TimeoutError, match="no Dask scheduler answered"):
+            list(ordered_map(abs, [(1,), (2,)],
+                             scheduler=f"tcp://127.0.0.1:{server.getsockname()[1]}"))

@@ -15,6 +15,7 @@ import contextlib
 import functools
 import os
 import sys
+import threading
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import Future, ProcessPoolExecutor, ThreadPoolExecutor
@@ -90,12 +91,13 @@ def ordered_map(fn: Callable[..., Any], tasks: Iterable[tuple[Any, ...]], *, job
 def _stop(pool: ProcessPoolExecutor) -> None:
     """End a pool at once (an interrupt, an error, a consumer that stopped early): its workers
     are killed, so that nothing waits on the images they were estimating."""
-    processes = list((getattr(pool, "_processes", None) or {}).values())
+    processes = dict(getattr(pool, "_processes", None) or {})
     pool.shutdown(wait=False, cancel_futures=True)
-    for process in processes:
+    processes.update(getattr(pool, "_processes", None) or {})
+    for process in processes.values():
         with contextlib.suppress(OSError, ValueError):
             process.kill()
-    for process in processes:
+    for process in processes.values():
         with contextlib.suppress(OSError, ValueError, AssertionError):
             process.join(timeout=5)
 
@@ -111,7 +113,7 @@ def _on_dask(fn: Callable[..., Any], tasks: list[tuple[Any, ...]], scheduler: An
 
     task_fn = functools.partial(_one_thread, fn)
     own = not isinstance(scheduler, Client)
-    client = Client(scheduler, set_as_default=False) if own else scheduler
+    client = _connect(scheduler) if own else scheduler
     try:
         with parallel_config(backend="dask", client=client):
             yield from Parallel(n_jobs=-1, return_as="generator")(
@@ -119,6 +121,50 @@ def _on_dask(fn: Callable[..., Any], tasks: list[tuple[Any, ...]], scheduler: An
     finally:
         if own:
             client.close()
+
+
+#: How long a scheduler's address has to answer as a Dask scheduler, seconds.
+CONNECT_SECONDS = 30.0
+
+
+def _connect(address: Any) -> Any:
+    """A client of the scheduler at ``address``, or an error within :data:`CONNECT_SECONDS`.
+
+    The connection is made in a thread of its own: a server that is not a
+    Dask scheduler (an HTTP server) accepts it and never answers the
+    handshake, whatever the client's timeout.
+    """
+    from distributed import Client
+    from distributed.comm import parse_address, parse_host_port
+
+    # A malformed address is refused here: a client that failed on it hangs 60 s at exit.
+    try:
+        scheme, where = parse_address(str(address))
+        if scheme not in ("tcp", "tls", "ws", "wss", "inproc", "ucx"):
+            raise ValueError(f"unknown protocol {scheme!r}")
+        if scheme != "inproc":
+            parse_host_port(where)
+    except (ValueError, TypeError) as exc:
+        raise ValueError(f"cannot use the Dask scheduler {address!r}: {exc} (an address "
+                         "such as tcp://host:8786)") from None
+    box: dict[str, Any] = {}
+
+    def connect() -> None:
+        try:
+            box["client"] = Client(address, set_as_default=False, timeout=CONNECT_SECONDS)
+        except BaseException as exc:   # handed to the caller's thread
+            box["error"] = exc
+
+    thread = threading.Thread(target=connect, daemon=True, name="posevote-dask-connect")
+    thread.start()
+    thread.join(CONNECT_SECONDS + 5.0)
+    if "client" in box:
+        return box["client"]
+    if "error" in box:
+        raise ValueError(f"cannot use the Dask scheduler {address!r}: "
+                         f"{type(box['error']).__name__}: {box['error']}") from None
+    raise TimeoutError(f"no Dask scheduler answered at {address!r} within "
+                       f"{CONNECT_SECONDS:g} s (is it a Dask scheduler's address?)")
 
 
 def _one_thread(fn: Callable[..., Any], *args: Any) -> Any:
