@@ -276,10 +276,17 @@ def train(source: Path, output: Path, layout: str, objects: str | None, cars: st
         jobs = est.n_jobs
         est.set_params(n_jobs=threads)
         with _progress(len(ts), "features") as bar:
+            def read(n: int) -> None:
+                bar.update(n)
+                if bar.n == len(ts) and est.weights:   # what follows has no bar: say so
+                    bar.close()
+                    click.echo(f"weighing the features of {len(ts)} views (Eq. 4; a minute "
+                               "or more past a thousand views) ...", err=True)
+
             est.fit(list(ts.images), ts.poses, boxes=ts.boxes,
                     masks=list(ts.masks) if ts.masks else None,
                     instances=list(ts.instances) if ts.instances and all(ts.instances) else None,
-                    category=ts.category, progress=bar.update, object_height_m=height,
+                    category=ts.category, progress=read, object_height_m=height,
                     origins=ts.origins if len(ts.origins) else None)
         # The threads were this machine's choice, not the model's.
         est.set_params(n_jobs=jobs)

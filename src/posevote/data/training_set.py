@@ -363,9 +363,9 @@ def read_poses_csv(folder: str | Path, *, allow_outside_paths: bool = False) -> 
         raise ValueError(f"{path}: no rows; a training set needs at least one image")
     named = [bool(i) for i in instances]
     if any(named) and not all(named):
-        row = named.index(False) + 2
-        raise ValueError(f"{path}, row {row}: the instance column is empty here and filled in "
-                         "other rows; name every row's instance, or none")
+        empty = named.index(False) + 2
+        raise ValueError(f"{path}, row {empty}: the instance column is empty here and filled "
+                         "in other rows; name every row's instance, or none")
     if len(categories) > 1:
         raise ValueError(f"{path}: rows name several categories ({sorted(categories)}); "
                          "train one model per category")

@@ -76,14 +76,13 @@ _REACH_SIGMAS = 3.0
 
 def _instance_weights(xy: NDArray[np.float64], theta: NDArray[np.float64],
                       view: NDArray[np.int64], directions: NDArray[np.float64], *,
-                      position_sigma: float, orientation_kappa: float, viewpoint_kappa: float,
-                      block_cells: int = 20_000_000) -> NDArray[np.float64]:
+                      position_sigma: float, orientation_kappa: float,
+                      viewpoint_kappa: float) -> NDArray[np.float64]:
     """Eq. 4 over the views of one instance (``view`` indexes ``directions``).
 
-    The strongest response per feature and view is gathered in a table of
-    features x views, a block of views at a time so that a block holds at
-    most ``block_cells`` cells (20 million: a table of 160 MB, and its
-    weighting's temporaries about as much again, however many views).
+    Each feature's strongest response per view is gathered for that feature
+    alone (:func:`_ambiguity`): the time grows with the pairs within reach,
+    the memory with the views, never with features x views.
     """
     m, k_views = len(theta), len(directions)
     if m == 0:
@@ -100,23 +99,12 @@ def _instance_weights(xy: NDArray[np.float64], theta: NDArray[np.float64],
     key = cells[:, 1] * n_cols + cells[:, 0]
     order = np.argsort(key, kind="stable")
     start = np.searchsorted(key[order], np.arange(n_rows * n_cols + 1))
-    k1_views = viewpoint_kernel(directions[:, None, :], directions[None, :, :], viewpoint_kappa)
-    theta = np.ascontiguousarray(theta, dtype=np.float64)
-    view = np.ascontiguousarray(view, dtype=np.int64)
-    block = max(1, block_cells // m)
-    ambiguity = np.zeros(m)
-    for lo in range(0, k_views, block):
-        hi = min(k_views, lo + block)
-        # psi~_k(x_i) for every feature and the block's views: the strongest
-        # response among the features of view k (0 where none is near). The
-        # strongest response is the exponential of the largest exponent: one
-        # exponential per table cell instead of one per pair.
-        psi = np.full((m, hi - lo), -np.inf)
-        _strongest_exponents(xy, theta, view, cells, order, start, n_rows, n_cols,
-                             float(radius), float(position_sigma), float(orientation_kappa),
-                             lo, hi, psi)
-        np.exp(psi, out=psi)
-        ambiguity += np.einsum("ik,ik->i", psi, 1.0 - k1_views[view, lo:hi])
+    unlike = 1.0 - viewpoint_kernel(directions[:, None, :], directions[None, :, :],
+                                    viewpoint_kappa)
+    ambiguity = _ambiguity(xy, np.ascontiguousarray(theta, dtype=np.float64),
+                           np.ascontiguousarray(view, dtype=np.int64), cells, order, start,
+                           n_rows, n_cols, float(radius), float(position_sigma),
+                           float(orientation_kappa), np.ascontiguousarray(unlike))
     return np.clip(1.0 - ambiguity / k_views, 0.0, 1.0)
 
 
@@ -149,53 +137,66 @@ def instance_weights_reference(xy: NDArray[np.float64], theta: NDArray[np.float6
 
 
 @numba.njit(cache=True, nogil=True)
-def _strongest_exponents(xy, theta, view, cells, order, start, n_rows, n_cols, radius, sigma,
-                         kappa, v_lo, v_hi, out):  # pragma: no cover - compiled
-    """``out[i, k - v_lo]``: the log of the strongest kernel response at feature i of any
-    feature of view k within ``radius``, for the views ``v_lo <= k < v_hi`` (``out``
-    starts at -inf).
+def _ambiguity(xy, theta, view, cells, order, start, n_rows, n_cols, radius, sigma, kappa,
+               unlike):  # pragma: no cover - compiled
+    """``sum_k psi~_k(x_i) (1 - K1~(w_i, w_k))`` for every feature ``i``: ``psi~_k(x_i)`` the
+    strongest kernel response at feature ``i`` of any feature of view ``k`` within
+    ``radius`` (a feature's response to itself is 1), ``unlike[i, k]`` the ``1 - K1~`` of
+    two views.
 
     The features are sorted into square cells at least ``radius`` wide (``cells``
     holds each one's column and row on an ``n_rows`` x ``n_cols`` grid, keyed
     ``row * n_cols + col``; ``order`` sorts the features by key and
-    ``start[key]`` is where a key's run begins): each feature meets
-    the later features of its own cell and those of the four cells after it
-    in row-major order among its eight neighbours, so each pair once. A
-    feature's response to itself is 1.
+    ``start[key]`` is where a key's run begins): each feature meets the
+    features of its own cell and its eight neighbours. Its strongest exponent
+    per view is kept in one row over the views, and only the views it met are
+    summed and reset.
     """
-    for a in range(xy.shape[0]):
-        if v_lo <= view[a] < v_hi:
-            out[a, view[a] - v_lo] = 0.0
+    m = xy.shape[0]
+    k_views = unlike.shape[0]
     inv = 1.0 / (2.0 * sigma * sigma)
     r2 = radius * radius
-    for pa in range(order.shape[0]):
-        a = order[pa]
+    best = np.full(k_views, -np.inf)
+    met = np.empty(k_views, dtype=np.int64)
+    out = np.zeros(m)
+    for a in range(m):
         col = cells[a, 0]
         row = cells[a, 1]
-        for dr, dc in ((0, 0), (0, 1), (1, -1), (1, 0), (1, 1)):
+        n_met = 1
+        met[0] = view[a]
+        best[view[a]] = 0.0
+        for dr in (-1, 0, 1):
             rr = row + dr
-            cc = col + dc
-            if rr >= n_rows or cc < 0 or cc >= n_cols:
+            if rr < 0 or rr >= n_rows:
                 continue
-            key = rr * n_cols + cc
-            lo = start[key]
-            hi = start[key + 1]
-            if dr == 0 and dc == 0:
-                lo = pa + 1
-            for pb in range(lo, hi):
-                b = order[pb]
-                dx = xy[a, 0] - xy[b, 0]
-                dy = xy[a, 1] - xy[b, 1]
-                d2 = dx * dx + dy * dy
-                if d2 > r2:
+            for dc in (-1, 0, 1):
+                cc = col + dc
+                if cc < 0 or cc >= n_cols:
                     continue
-                a_in = v_lo <= view[a] < v_hi
-                b_in = v_lo <= view[b] < v_hi
-                if not (a_in or b_in):
-                    continue
-                # Both kernels' exponents summed.
-                r = kappa * (np.cos(2.0 * (theta[a] - theta[b])) - 1.0) - d2 * inv
-                if b_in and r > out[a, view[b] - v_lo]:
-                    out[a, view[b] - v_lo] = r
-                if a_in and r > out[b, view[a] - v_lo]:
-                    out[b, view[a] - v_lo] = r
+                key = rr * n_cols + cc
+                for pb in range(start[key], start[key + 1]):
+                    b = order[pb]
+                    if b == a:
+                        continue
+                    dx = xy[a, 0] - xy[b, 0]
+                    dy = xy[a, 1] - xy[b, 1]
+                    d2 = dx * dx + dy * dy
+                    if d2 > r2:
+                        continue
+                    # Both kernels' exponents summed.
+                    r = kappa * (np.cos(2.0 * (theta[a] - theta[b])) - 1.0) - d2 * inv
+                    k = view[b]
+                    if best[k] == -np.inf:
+                        met[n_met] = k
+                        n_met += 1
+                    if r > best[k]:
+                        best[k] = r
+        # The views in increasing order, as a sum over the whole row would take them.
+        seen = np.sort(met[:n_met])
+        total = 0.0
+        for t in range(n_met):
+            k = seen[t]
+            total += np.exp(best[k]) * unlike[view[a], k]
+            best[k] = -np.inf
+        out[a] = total
+    return out
