@@ -143,6 +143,30 @@ def test_a_malformed_scheduler_address_is_refused_at_once(address):
     assert time.monotonic() - start < 10
 
 
+def test_a_server_that_answers_nonsense_is_refused_at_once():
+    pytest.importorskip("distributed")
+    import socket
+    import threading
+
+    server = socket.socket()
+    server.bind(("127.0.0.1", 0))
+    server.listen(8)
+
+    def answer() -> None:
+        conn, _ = server.accept()
+        with conn:
+            conn.recv(1024)
+            conn.sendall(b"HTTP/1.0 400 Bad Request\r\nContent-Length: 0\r\n\r\n")
+
+    threading.Thread(target=answer, daemon=True).start()
+    try:
+        with pytest.raises(ValueError, match="does not answer as one"):
+            list(ordered_map(abs, [(1,), (2,)],
+                             scheduler=f"tcp://127.0.0.1:{server.getsockname()[1]}"))
+    finally:
+        server.close()
+
+
 def test_a_server_that_is_not_a_scheduler_times_out(monkeypatch):
     pytest.importorskip("distributed")
     import socket
@@ -157,3 +181,9 @@ def test_a_server_that_is_not_a_scheduler_times_out(monkeypatch):
         with pytest.raises(TimeoutError, match="no Dask scheduler answered"):
             list(ordered_map(abs, [(1,), (2,)],
                              scheduler=f"tcp://127.0.0.1:{server.getsockname()[1]}"))
+
+
+@pytest.mark.filterwarnings("ignore")
+def test_a_scheduler_given_by_its_address_is_used(client):
+    address = client.scheduler.address
+    assert list(ordered_map(abs, [(-1,), (-2,), (3,)], scheduler=address)) == [1, 2, 3]

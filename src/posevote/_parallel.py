@@ -130,14 +130,14 @@ CONNECT_SECONDS = 30.0
 def _connect(address: Any) -> Any:
     """A client of the scheduler at ``address``, or an error within :data:`CONNECT_SECONDS`.
 
-    The connection is made in a thread of its own: a server that is not a
-    Dask scheduler (an HTTP server) accepts it and never answers the
-    handshake, whatever the client's timeout.
+    The address is asked who it is first, in a thread of its own and without
+    a client: a server that is not a Dask scheduler may never answer the
+    handshake (a web server), or answer nonsense, and a client that failed on
+    it hangs a minute when it is collected.
     """
     from distributed import Client
     from distributed.comm import parse_address, parse_host_port
 
-    # A malformed address is refused here: a client that failed on it hangs 60 s at exit.
     try:
         scheme, where = parse_address(str(address))
         if scheme not in ("tcp", "tls", "ws", "wss", "inproc", "ucx"):
@@ -149,20 +149,35 @@ def _connect(address: Any) -> Any:
                          "such as tcp://host:8786)") from None
     box: dict[str, Any] = {}
 
-    def connect() -> None:
+    def probe() -> None:
+        import asyncio
+
+        from distributed.core import rpc
+
+        async def identity() -> Any:
+            remote = rpc(str(address), timeout=CONNECT_SECONDS)
+            try:
+                return await asyncio.wait_for(remote.identity(), CONNECT_SECONDS)
+            finally:
+                await remote.close_rpc()
+
         try:
-            box["client"] = Client(address, set_as_default=False, timeout=CONNECT_SECONDS)
+            box["identity"] = asyncio.run(identity())
         except BaseException as exc:   # handed to the caller's thread
             box["error"] = exc
 
-    thread = threading.Thread(target=connect, daemon=True, name="posevote-dask-connect")
+    thread = threading.Thread(target=probe, daemon=True, name="posevote-dask-probe")
     thread.start()
     thread.join(CONNECT_SECONDS + 5.0)
-    if "client" in box:
-        return box["client"]
-    if "error" in box:
-        raise ValueError(f"cannot use the Dask scheduler {address!r}: "
-                         f"{type(box['error']).__name__}: {box['error']}") from None
+    found = box.get("identity")
+    if isinstance(found, dict) and found.get("type") == "Scheduler":
+        return Client(str(address), set_as_default=False, timeout=CONNECT_SECONDS)
+    if "error" in box and not isinstance(box["error"], TimeoutError):
+        raise ValueError(f"cannot use the Dask scheduler {address!r}: it does not answer as "
+                         f"one ({type(box['error']).__name__}: {box['error']})") from None
+    if "identity" in box:
+        raise ValueError(f"cannot use the Dask scheduler {address!r}: it answers as "
+                         f"{found.get('type') if isinstance(found, dict) else found!r}") from None
     raise TimeoutError(f"no Dask scheduler answered at {address!r} within "
                        f"{CONNECT_SECONDS:g} s (is it a Dask scheduler's address?)")
 
