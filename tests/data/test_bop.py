@@ -151,3 +151,12 @@ def test_annotation_files_nested_too_deep_twice_keyed_or_huge_are_refused(tmp_pa
         fh.truncate(MAX_BOP_JSON_BYTES + 1)
     with pytest.raises(ValueError, match="scene_gt.json: .* over the limit"):
         read_bop_scene(folder, obj_id=1)
+
+
+def test_estimating_a_scene_folder_not_named_by_its_id_is_refused(tmp_path, draw,
+                                                                  fitted_estimator):
+    from posevote.batch import estimate_bop_scene
+
+    folder = scene(tmp_path / "my_scene", draw, (0, 90))
+    with pytest.raises(ValueError, match="my_scene: a BOP scene folder is named by its id"):
+        estimate_bop_scene(fitted_estimator, folder, obj_id=1)
