@@ -187,9 +187,17 @@ def test_number_lists(tmp_path, option, value):
     assert r.exit_code == 2 and option in r.output and value in r.output
 
 
-def test_unknown_preset(folder, tmp_path):
+def test_unknown_preset_is_a_usage_error(folder, tmp_path):
     r = invoke("train", folder, "--preset", "nosuch", "-o", tmp_path / "m.npz")
-    assert r.exit_code == 1 and "unknown preset 'nosuch'" in r.output
+    assert r.exit_code == 2 and "unknown preset 'nosuch'" in r.output and "--preset" in r.output
+    r = invoke("evaluate", "frames", "--preset", "nosuch", "--out", tmp_path / "f")
+    assert r.exit_code == 2 and "unknown preset 'nosuch'" in r.output
+
+
+def test_a_misspelt_param_gets_the_near_name(folder, tmp_path):
+    r = invoke("train", folder, "--param", "search.scale_rnage=(0.8,1.2)", "-o",
+               tmp_path / "m.npz")
+    assert r.exit_code == 2 and "did you mean 'search.scale_range'?" in r.output
 
 
 @pytest.mark.parametrize("args", [["evaluate", "epfl-cv", "--data", ".", "--every", "0"],

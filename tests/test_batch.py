@@ -146,3 +146,26 @@ def test_csv_on_stdout_quotes_names_with_commas_and_newlines(model, frames, tmp_
     assert r.exit_code == 0, r.output
     rows = list(csv.reader(io.StringIO(r.output)))
     assert len(rows) == 3 and rows[1][0] == str(odd)
+
+
+def test_folders_are_read_in_natural_order(frames, tmp_path):
+    import shutil
+
+    for name in ("obj1__110.png", "obj1__10.png", "obj1__5.png", "obj2__0.png"):
+        shutil.copy(frames / "f0.png", tmp_path / name)
+    names = [p.name for p in expand_images([tmp_path])]
+    assert names == ["obj1__5.png", "obj1__10.png", "obj1__110.png", "obj2__0.png"]
+    assert [p.name for p in expand_images([str(tmp_path / "obj1*.png")])] == names[:3]
+
+
+def test_output_piped_into_head_ends_quietly(model, frames):
+    import subprocess
+    import sys
+
+    proc = subprocess.Popen([sys.executable, "-m", "posevote.cli", "estimate", str(model),
+                             str(frames)] + [str(frames / "f0.png")] * 40,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    first = proc.stdout.readline()
+    proc.stdout.close()                   # what `head -1` does
+    _, err = proc.communicate(timeout=120)
+    assert first and b"Broken pipe" not in err and b"Error" not in err and b"Traceback" not in err

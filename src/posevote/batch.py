@@ -18,6 +18,7 @@ import hashlib
 import io
 import json
 import os
+import re
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
@@ -36,8 +37,15 @@ CSV_FIELDS = ("image", "object", "found", "azimuth_deg", "elevation_deg", "inpla
               "seconds")
 
 
+def natural_key(path: Path) -> tuple[Any, ...]:
+    """A path's sort key with its runs of digits read as numbers: ``__5`` before ``__10``
+    before ``__110``, as a file browser shows them."""
+    parts = re.split(r"(\d+)", str(path))
+    return tuple((0, int(p), p) if p.isdigit() else (1, p, p) for p in parts)
+
+
 def expand_images(items: Sequence[str | Path]) -> list[Path]:
-    """Image files from paths, folders (their images, sorted) and glob patterns.
+    """Image files from paths, folders (their images, in natural order) and glob patterns.
 
     Raises
     ------
@@ -52,15 +60,17 @@ def expand_images(items: Sequence[str | Path]) -> list[Path]:
     for item in items:
         path = Path(item)
         if path.is_dir():
-            found = sorted(p for p in path.iterdir()
-                           if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
+            found = sorted((p for p in path.iterdir()
+                            if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES),
+                           key=natural_key)
             if not found:
                 raise ValueError(f"{path}: the folder holds no image ({', '.join(IMAGE_SUFFIXES)})")
             out.extend(found)
         elif path.is_file():
             out.append(path)
         elif glob.has_magic(str(item)):
-            matched = sorted(Path(p) for p in glob.glob(str(item)) if Path(p).is_file())
+            matched = sorted((Path(p) for p in glob.glob(str(item)) if Path(p).is_file()),
+                             key=natural_key)
             if not matched:
                 raise FileNotFoundError(f"{item}: no file matches this pattern")
             out.extend(matched)

@@ -63,8 +63,21 @@ def _output_folder(path: Path, option: str) -> Path:
     return path
 
 
+def _preset_name(ctx: click.Context, param: click.Parameter, value: str | None) -> str | None:
+    """A ``--preset`` value that names a preset (a usage error otherwise)."""
+    from posevote.presets import PRESETS
+
+    if value is not None and value not in PRESETS:
+        raise click.BadParameter(f"unknown preset {value!r}; choose one of "
+                                 f"{', '.join(PRESETS)}")
+    return value
+
+
 def _input_error(exc: BaseException) -> InputError:
     """The ``Error:`` message for a bad input, naming the file where the exception knows it."""
+    if isinstance(exc, BrokenPipeError):
+        # The reader of the output went away (``| head``): click ends quietly.
+        raise exc
     if isinstance(exc, OSError) and not isinstance(exc, FileNotFoundError) and exc.filename:
         return InputError(f"{exc.filename}: {exc.strerror or exc}")
     if isinstance(exc, MemoryError):
@@ -108,6 +121,7 @@ def _object_height(ts: Any, camera_file: Path | None, height: float | None) -> f
 def _parse_params(items: tuple[str, ...]) -> dict[str, Any]:
     """``--param`` items as :meth:`PoseEstimator.set_params` keys (``group.field`` -> ``group__field``)."""
     import dataclasses
+    import difflib
 
     from posevote._options import parse_setting
     from posevote.estimator import PoseEstimator
@@ -124,7 +138,9 @@ def _parse_params(items: tuple[str, ...]) -> dict[str, Any]:
                 f.name for f in dataclasses.fields(OPTION_GROUPS[group])})):
             valid = [*top, *(f"{g}.{f.name}" for g, c in OPTION_GROUPS.items()
                              for f in dataclasses.fields(c))]
-            raise click.BadParameter(f"unknown estimator parameter {name!r}; valid: "
+            near = difflib.get_close_matches(name.strip(), valid, n=1, cutoff=0.6)
+            hint = f"did you mean {near[0]!r}? " if near else ""
+            raise click.BadParameter(f"unknown estimator parameter {name!r}; {hint}valid: "
                                      f"{', '.join(valid)}", param_hint="--param")
         if not dot and group in OPTION_GROUPS and value.strip() == "on":
             params[group] = OPTION_GROUPS[group]()
@@ -209,7 +225,7 @@ def cli() -> None:
               help="The object's height in metres (its box height), for poses in metres.")
 @click.option("--allow-outside-paths", is_flag=True,
               help="Let poses.csv name images outside SOURCE (absolute or ../ paths).")
-@click.option("--preset", default="default", show_default=True,
+@click.option("--preset", default="default", show_default=True, callback=_preset_name,
               help="Named settings to start from (see `posevote presets`).")
 @click.option("--no-weights", is_flag=True, help="Store the model with weights switched off.")
 @click.option("--prune", type=click.Choice(["none", "moderate", "aggressive"]), default="none",
@@ -599,7 +615,7 @@ def weights(model: Path, output: Path, views: int) -> None:
 @click.option("--images", type=click.IntRange(1, 10_000), default=None,
               help="rendered-sphere: test images [default: 40]; frames: frames with the "
                    "object per object and size [default: 2].")
-@click.option("--preset", default=None,
+@click.option("--preset", default=None, callback=_preset_name,
               help="frames only: the preset of the objects' models [default: cluttered].")
 def evaluate(protocol: str, data: Path | None, out: Path | None, jobs: int, every: int,
              rows: str | None, scheduler: str | None, images: int | None,

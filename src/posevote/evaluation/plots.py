@@ -93,7 +93,9 @@ def draw_overlay(image: NDArray, estimate: PoseEstimate, *, truth_box: Sequence[
     truth_box : sequence of float, optional
         True box ``(x, y, w, h)``, drawn in green.
     label : str, optional
-        Text written under the rose (defaults to the azimuth and score).
+        Text written at the bottom (defaults to the best mode's azimuth, score and
+        probability). A legend beside the rose says what the arrows, colours and
+        0 degrees are.
 
     Returns
     -------
@@ -116,15 +118,27 @@ def draw_overlay(image: NDArray, estimate: PoseEstimate, *, truth_box: Sequence[
         u, v = (float(t) * zoom for t in estimate.best.position)
         cv2.drawMarker(canvas, (int(u), int(v)), (0, 0, 230), cv2.MARKER_CROSS, 10, 1)
         _rose(canvas, estimate.modes, centre=(radius + 4, radius + 4), radius=radius)
-        text = label or f"az {estimate.best.azimuth_deg:.1f} deg  s {estimate.best.score:.2f}"
+        legend = ["arrow: the object's front, seen from above",
+                  "pointing down: azimuth 0, front to the camera",
+                  "red: best mode (box, arrow); orange, yellow: next modes"]
+        if truth_box is not None:
+            legend.append("green: the true box")
+        for row, line in enumerate(legend):
+            _text(canvas, line, (2 * radius + 12, 12 + 13 * row), 0.36)
+        best = estimate.best
+        text = label or (f"azimuth {best.azimuth_deg:.1f} deg  score {best.score:.2f}  "
+                         f"p {best.probability:.2f}")
     else:
         text = label or "not found"
-    bottom = canvas.shape[0] - 6
-    cv2.putText(canvas, text, (4, bottom), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 3,
-                cv2.LINE_AA)
-    cv2.putText(canvas, text, (4, bottom), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 255, 255), 1,
-                cv2.LINE_AA)
+    _text(canvas, text, (4, canvas.shape[0] - 6), 0.45)
     return canvas
+
+
+def _text(canvas: NDArray[np.uint8], text: str, at: tuple[int, int], size: float) -> None:
+    """White text outlined in black: legible on any image."""
+    cv2.putText(canvas, text, at, cv2.FONT_HERSHEY_SIMPLEX, size, (0, 0, 0), 3, cv2.LINE_AA)
+    cv2.putText(canvas, text, at, cv2.FONT_HERSHEY_SIMPLEX, size, (255, 255, 255), 1,
+                cv2.LINE_AA)
 
 
 def write_png(path: str | Path, image_bgr: NDArray[np.uint8]) -> None:
