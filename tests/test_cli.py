@@ -265,3 +265,18 @@ def test_written_files_follow_the_umask(model_file, test_image, tmp_path):
         assert result.exit_code == 0 and stat.S_IMODE(overlay.stat().st_mode) == 0o644
     finally:
         os.umask(old)
+
+
+def test_the_first_run_says_it_prepares_its_kernels(monkeypatch, tmp_path, model_file,
+                                                    test_image):
+    import posevote.cli as cli_module
+
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "empty"))
+    assert not cli_module._kernels_compiled()
+    result = CliRunner().invoke(cli, ["estimate", str(model_file), str(test_image)])
+    assert result.exit_code == 0 and "preparing posevote's compiled kernels" in result.output
+    (tmp_path / "empty" / "x").mkdir(parents=True)
+    (tmp_path / "empty" / "x" / "voting._search_kernel-1.py311.nbi").write_bytes(b"")
+    assert cli_module._kernels_compiled()
+    result = CliRunner().invoke(cli, ["estimate", str(model_file), str(test_image)])
+    assert result.exit_code == 0 and "preparing" not in result.output

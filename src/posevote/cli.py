@@ -16,6 +16,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import os
 import sys
 from pathlib import Path
 from typing import Any
@@ -61,6 +62,23 @@ def _output_folder(path: Path, option: str) -> Path:
     if path.exists() and not path.is_dir():
         raise click.BadParameter(f"{path} is a file; give a folder", param_hint=option)
     return path
+
+
+def _kernels_compiled() -> bool:
+    """Whether numba's cache holds posevote's search kernels (compiled on first use)."""
+    import posevote.inference
+
+    # numba keeps its cache beside the module, or wholly in NUMBA_CACHE_DIR when it is set.
+    place = Path(os.environ.get("NUMBA_CACHE_DIR") or
+                 Path(posevote.inference.__file__).parent / "__pycache__")
+    return place.is_dir() and next(place.rglob("voting.*.nbi"), None) is not None
+
+
+def _first_run_notice() -> None:
+    """Say, once after installing, why the first run is slow."""
+    if not _kernels_compiled():
+        click.echo("preparing posevote's compiled kernels: once after installing, about 20 s "
+                   "...", err=True)
 
 
 def _preset_name(ctx: click.Context, param: click.Parameter, value: str | None) -> str | None:
@@ -251,6 +269,7 @@ def train(source: Path, output: Path, layout: str, objects: str | None, cars: st
 
     # A model file, never one of the inputs (poses.csv, an image) under another name.
     _output_file(output, "-o", suffixes=(".npz",))
+    _first_run_notice()
     for value, option, wanted in ((objects, "--objects", "coil"), (cars, "--cars", "epfl"),
                                   (azimuth_step_deg, "--azimuth-step-deg", "coil")):
         if value is not None and layout != wanted and not (option == "--objects"
@@ -379,6 +398,7 @@ def estimate(model: Path, images: tuple[Path, ...], as_json: bool, as_csv: bool,
         _output_file(overlay, "--overlay", suffixes=IMAGE_SUFFIXES)
     if out is not None:
         _output_folder(out, "--out")
+    _first_run_notice()
     try:
         est = PoseEstimator.load(model)
         camera = None if camera_file is None else read_camera(camera_file)
@@ -627,6 +647,7 @@ def evaluate(protocol: str, data: Path | None, out: Path | None, jobs: int, ever
     from posevote.evaluation.runner import run_protocol
 
     out = _output_folder(out if out is not None else Path("results") / protocol, "--out")
+    _first_run_notice()
     if preset is not None and protocol != "frames":
         raise click.BadParameter("only for frames", param_hint="--preset")
     if protocol == "frames":
@@ -717,6 +738,7 @@ def demo(output: Path, n_test: int, seed: int) -> None:
     from posevote.demo import run_demo
 
     _output_folder(output, "-o")
+    _first_run_notice()
     try:
         summary = run_demo(output, n_test=n_test, seed=seed, log=click.echo)
     except BAD_INPUT as exc:
