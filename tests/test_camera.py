@@ -242,3 +242,38 @@ def test_cli_metric_inputs_refused(metric_folder):
     r = runner.invoke(cli, ["train", str(metric_folder), "--camera", str(metric_folder / "cam.json"),
                             "-o", out])
     assert r.exit_code == 1 and "row 2: distance_m must be a positive" in r.output
+
+
+def _distorted(image, camera):
+    """What a lens with ``camera.dist`` makes of ``image`` (seen by the undistorted camera)."""
+    h, w = image.shape
+    grid = np.stack(np.meshgrid(np.arange(w, dtype=np.float64),
+                                np.arange(h, dtype=np.float64)), axis=-1).reshape(-1, 1, 2)
+    # Each distorted pixel shows the undistorted image where its ray goes.
+    ideal = cv2.undistortPoints(grid, camera.K, np.asarray(camera.dist), P=camera.K)
+    maps = ideal.reshape(h, w, 2).astype(np.float32)
+    return cv2.remap(image.astype(np.float32), maps[..., 0], maps[..., 1], cv2.INTER_LINEAR)
+
+
+def test_a_lens_with_distortion_is_undistorted_before_the_search(fitted_estimator, draw):
+    camera = Camera(fx=400.0, fy=400.0, cx=320.0, cy=240.0, dist=(-0.3, 0.08, 0.0, 0.0))
+    plain = Camera(fx=400.0, fy=400.0, cx=320.0, cy=240.0)
+    frame = np.zeros((480, 640))
+    frame[300:428, 470:598] = draw(np.radians(100.0))      # near a corner, where it bends
+    seen = _distorted(frame, camera)
+    truth = fitted_estimator.estimate(frame, camera=plain).best
+    fixed = fitted_estimator.estimate(seen, camera=camera).best
+    raw = fitted_estimator.estimate(seen, camera=plain).best
+    def err(h):
+        return float(np.hypot(*np.subtract(h.position, truth.position)))
+
+    assert err(fixed) < 3.0 < err(raw)
+    assert abs(fixed.azimuth_deg - truth.azimuth_deg) < 10.0
+    assert camera.to_dict()["dist"] == [-0.3, 0.08, 0.0, 0.0]
+    assert Camera.from_dict(camera.to_dict()) == camera
+
+
+@pytest.mark.parametrize("dist", [[0.1, 0.2, 0.3], [float("nan")] * 4, "abcd", [1e9] * 5])
+def test_malformed_distortion_is_refused(dist):
+    with pytest.raises(ValueError, match="Camera.dist must be OpenCV's distortion"):
+        Camera(fx=400.0, fy=400.0, cx=320.0, cy=240.0, dist=dist)

@@ -117,7 +117,7 @@ def estimate_record(est: Any, item: tuple[dict[str, float] | None, str, int]) ->
     from posevote.camera import Camera
 
     camera, image, max_objects = item
-    cam = None if camera is None else Camera(**camera)
+    cam = None if camera is None else Camera.from_dict(camera, where="camera")
     try:
         if max_objects > 1:
             found = est.estimate_objects(image, max_objects, camera=cam)
@@ -156,7 +156,7 @@ def csv_row(record: dict[str, Any]) -> list[Any]:
             *(R[i][j] for i in range(3) for j in range(3)), *t, record.get("seconds")]
 
 
-def _fingerprint(model: Path, settings: dict[str, Any], camera: dict[str, float] | None) -> str:
+def _fingerprint(model: Path, settings: dict[str, Any], camera: dict[str, Any] | None) -> str:
     digest = hashlib.sha256(model.read_bytes())
     digest.update(json.dumps([settings, camera], sort_keys=True, default=str).encode())
     return digest.hexdigest()[:16]
@@ -164,7 +164,7 @@ def _fingerprint(model: Path, settings: dict[str, Any], camera: dict[str, float]
 
 def estimate_images(model: str | Path, images: Sequence[Path], *,
                     settings: dict[str, Any] | None = None,
-                    camera: dict[str, float] | None = None, jobs: int = 1,
+                    camera: dict[str, Any] | None = None, jobs: int = 1,
                     max_objects: int = 1, out: str | Path | None = None,
                     progress: Callable[[int, int], None] | None = None,
                     log: Callable[[str], None] | None = None,
@@ -180,7 +180,7 @@ def estimate_images(model: str | Path, images: Sequence[Path], *,
     settings : dict, optional
         :meth:`~posevote.PoseEstimator.set_params` changes.
     camera : dict, optional
-        The test camera's ``fx, fy, cx, cy``.
+        The test camera's ``fx, fy, cx, cy`` (and ``dist``: :meth:`posevote.camera.Camera.to_dict`).
     jobs : int, optional
         Worker processes.
     max_objects : int, optional
@@ -262,7 +262,7 @@ def _stamp(name: str) -> str:
     return f"{st.st_size}:{st.st_mtime_ns}"
 
 
-def _run(model: str, settings: dict[str, Any], camera: dict[str, float] | None,
+def _run(model: str, settings: dict[str, Any], camera: dict[str, Any] | None,
          max_objects: int, names: list[str], jobs: int, done: dict[str, dict[str, Any]], fh: Any,
          progress: Callable[[int, int], None] | None, scheduler: Any,
          stamps: dict[str, str] | None = None) -> Iterator[dict[str, Any]]:

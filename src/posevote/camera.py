@@ -25,7 +25,11 @@ over the views of ``box height * distance / fy``
 typical instance's height, so a smaller instance is placed farther away.
 
 A camera file is JSON: ``{"fx": ..., "fy": ..., "cx": ..., "cy": ...}``
-(pixels), or ``{"K": [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]}``.
+(pixels), or ``{"K": [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]}``, with
+OpenCV's distortion coefficients as ``"dist": [k1, k2, p1, p2, ...]`` where
+the lens distorts: a test image is then undistorted before the search, and
+``R_cam_obj``, ``t_cam_obj`` are in the undistorted camera's frame (same
+intrinsics, no distortion).
 """
 
 from __future__ import annotations
@@ -36,6 +40,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -43,10 +48,14 @@ from posevote._io import parse_json
 from posevote.geometry import rotation_from_pose
 from posevote.results import Hypothesis
 
+#: How many distortion coefficients OpenCV takes (none, or one of its models).
+DIST_LENGTHS = (0, 4, 5, 8, 12, 14)
+
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
 class Camera:
-    """Pinhole intrinsics, pixels (OpenCV's camera frame: +X right, +Y down, +Z forward).
+    """Pinhole intrinsics, pixels (OpenCV's camera frame: +X right, +Y down, +Z forward), and
+    the lens's distortion.
 
     Attributes
     ----------
@@ -54,6 +63,12 @@ class Camera:
         Focal lengths, pixels (positive).
     cx, cy : float
         Principal point, pixels.
+    dist : tuple of float
+        OpenCV's distortion coefficients ``(k1, k2, p1, p2[, k3[, k4, k5, k6[, s1, s2,
+        s3, s4[, tx, ty]]]])``: 4, 5, 8, 12 or 14 numbers; empty for none. A test
+        image is undistorted with them (:meth:`undistort`) before the search, so
+        that poses are in the undistorted camera's frame, of the same ``fx, fy,
+        cx, cy``.
 
     Examples
     --------
@@ -68,8 +83,31 @@ class Camera:
     fy: float
     cx: float
     cy: float
+    dist: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
+        self._check_intrinsics()
+        try:
+            dist = tuple(float(v) for v in self.dist)
+        except (TypeError, ValueError):
+            dist = (math.nan,)
+        if isinstance(self.dist, (str, bytes)) or len(dist) not in DIST_LENGTHS \
+                or not all(math.isfinite(v) and abs(v) <= 1e4 for v in dist):
+            raise ValueError(f"Camera.dist must be OpenCV's distortion coefficients: "
+                             f"{', '.join(map(str, DIST_LENGTHS[1:]))} finite numbers (or none), "
+                             f"got {self.dist!r}")
+        object.__setattr__(self, "dist", dist)
+
+    def undistort(self, image: NDArray[np.floating]) -> NDArray[np.float64]:
+        """``image`` as the undistorted camera of the same intrinsics sees it (the image
+        itself where there are no distortion coefficients)."""
+        if not self.dist:
+            return np.asarray(image, dtype=np.float64)
+        out = cv2.undistort(np.asarray(image, dtype=np.float32), self.K,
+                            np.asarray(self.dist, dtype=np.float64))
+        return np.asarray(out, dtype=np.float64)
+
+    def _check_intrinsics(self) -> None:
         for name in ("fx", "fy", "cx", "cy"):
             value = getattr(self, name)
             ok = isinstance(value, (int, float, np.integer, np.floating)) \
@@ -114,27 +152,31 @@ class Camera:
                                     or not 0 < size <= 100_000):
                     raise ValueError(f"{key} must be a whole number of pixels from 1 to "
                                      f"100000, got {size!r}")
+            dist = data.get("dist", ())
             if "K" in data:
-                if set(data) - {"K", "width", "height"}:
+                if set(data) - {"K", "width", "height", "dist"}:
                     raise ValueError(f"give K or fx, fy, cx, cy, not both ({sorted(data)})")
                 K = np.asarray(data["K"], dtype=np.float64)
                 if K.shape != (3, 3) or not np.allclose(K[2], [0, 0, 1]) \
                         or K[0, 1] != 0 or K[1, 0] != 0:
                     raise ValueError(f"K must be [[fx, 0, cx], [0, fy, cy], [0, 0, 1]], got "
                                      f"{data['K']!r}")
-                return cls(fx=K[0, 0], fy=K[1, 1], cx=K[0, 2], cy=K[1, 2])
-            unknown = sorted(set(data) - {"fx", "fy", "cx", "cy", "width", "height"})
+                return cls(fx=K[0, 0], fy=K[1, 1], cx=K[0, 2], cy=K[1, 2], dist=dist)
+            unknown = sorted(set(data) - {"fx", "fy", "cx", "cy", "width", "height", "dist"})
             missing = [k for k in ("fx", "fy", "cx", "cy") if k not in data]
             if unknown or missing:
                 raise ValueError(f"expected fx, fy, cx, cy (missing {missing}, unknown "
                                  f"{unknown})")
-            return cls(fx=data["fx"], fy=data["fy"], cx=data["cx"], cy=data["cy"])
+            return cls(fx=data["fx"], fy=data["fy"], cx=data["cx"], cy=data["cy"], dist=dist)
         except (TypeError, ValueError) as exc:
             raise ValueError(f"{where}: {exc}") from None
 
-    def to_dict(self) -> dict[str, float]:
-        """``{"fx", "fy", "cx", "cy"}``."""
-        return dataclasses.asdict(self)
+    def to_dict(self) -> dict[str, Any]:
+        """``{"fx", "fy", "cx", "cy"}``, and ``"dist"`` where the lens has distortion."""
+        out: dict[str, Any] = {k: getattr(self, k) for k in ("fx", "fy", "cx", "cy")}
+        if self.dist:
+            out["dist"] = list(self.dist)
+        return out
 
 
 def read_camera(path: str | Path) -> Camera:

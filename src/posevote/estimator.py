@@ -205,6 +205,9 @@ class PoseEstimator(GroupedParams):
         trained, settings = self._trained(), self._settings()
         steps = pipeline.active_steps(settings, names)
         img = load_image(image, channels=channels)
+        camera = kw.get("camera")
+        if isinstance(camera, Camera):
+            img = camera.undistort(img)   # the poses are the undistorted camera's
         return pipeline.begin(settings, trained, img, extract_edges(img, self.edges, training=False),
                               steps=steps, **kw), steps
 
@@ -229,7 +232,9 @@ class PoseEstimator(GroupedParams):
             Colour order of an array (``"bgr"``: from ``cv2.imread``).
         camera : Camera, optional
             The test camera: each mode then holds ``R_cam_obj``, and ``t_cam_obj``
-            (metres) where the model knows the object's height.
+            (metres) where the model knows the object's height; an image from a
+            lens with distortion (``Camera.dist``) is undistorted first, and the
+            poses are the undistorted camera's.
 
         Returns
         -------
