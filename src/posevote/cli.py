@@ -593,6 +593,93 @@ def presets(verbose: bool) -> None:
 
 
 @cli.command()
+@click.option("-o", "--output", required=True, type=click.Path(path_type=Path),
+              help="PNG file to write (its geometry goes beside it, as .json).")
+@click.option("--squares", nargs=2, type=click.IntRange(3, 40), default=(7, 5),
+              show_default=True, help="Chessboard squares across and down.")
+@click.option("--square-mm", type=click.FloatRange(2.0, 1000.0), default=40.0,
+              show_default=True, help="A square's side as printed, millimetres.")
+@click.option("--marker-mm", type=click.FloatRange(1.0, 999.0), default=30.0,
+              show_default=True, help="An ArUco marker's side as printed, millimetres.")
+@click.option("--dpi", type=click.IntRange(72, 1200), default=300, show_default=True,
+              help="Print resolution of the image.")
+def board(output: Path, squares: tuple[int, int], square_mm: float, marker_mm: float,
+          dpi: int) -> None:
+    """Write a ChArUco board to print at 100% (no scaling) and stand the object on, for
+    `posevote capture`."""
+    from posevote.capture import BoardSpec, write_board
+
+    _output_file(output, "-o", suffixes=(".png",))
+    try:
+        spec = BoardSpec(squares=squares, square_m=square_mm / 1000.0,
+                         marker_m=marker_mm / 1000.0)
+        geometry = write_board(output, spec, dpi=dpi)
+    except BAD_INPUT as exc:
+        raise _input_error(exc) from None
+    width, height = spec.size_m
+    click.echo(f"wrote {output} ({width * 1000:.0f} x {height * 1000:.0f} mm of squares at "
+               f"{dpi} dpi; print at 100%, then measure a square: {square_mm:g} mm) and "
+               f"{geometry}")
+
+
+@cli.command()
+@click.argument("photos", nargs=-1, required=True, type=click.Path(path_type=Path))
+@click.option("-o", "--output", required=True, type=click.Path(path_type=Path),
+              help="Training folder to write (images, poses.csv, camera.json).")
+@click.option("--board", "board_file", type=click.Path(path_type=Path), default=None,
+              help="The board's .json from `posevote board` [default: its defaults].")
+@click.option("--height-mm", type=click.FloatRange(1.0, 10000.0), required=True,
+              help="The object's height, millimetres.")
+@click.option("--radius-mm", type=click.FloatRange(1.0, 10000.0), required=True,
+              help="The radius of a cylinder standing on the board that holds the object.")
+@click.option("--centre-mm", nargs=2, type=float, default=None,
+              help="Where the object stands: millimetres from the board's top-left "
+                   "chessboard corner, right and down as printed [default: the board's "
+                   "centre].")
+@click.option("--camera", "camera_file", type=click.Path(path_type=Path), default=None,
+              help="The camera file; default: calibrated from the photographs.")
+@click.option("--max-error-px", type=click.FloatRange(0.1, 20.0), default=1.5,
+              show_default=True, help="Refuse photographs whose board fits worse (RMS px).")
+def capture(photos: tuple[Path, ...], output: Path, board_file: Path | None, height_mm: float,
+            radius_mm: float, centre_mm: tuple[float, float] | None, camera_file: Path | None,
+            max_error_px: float) -> None:
+    """Make a training folder from PHOTOS (files, folders, patterns) of the object standing
+    on the printed board: each photograph's pose and box from the board, the camera
+    calibrated from them; then `posevote train OUTPUT -o model.npz`."""
+    from posevote.batch import expand_images
+    from posevote.camera import read_camera
+    from posevote.capture import BoardSpec, Footprint
+    from posevote.capture import capture as run_capture
+
+    _output_folder(output, "-o")
+    try:
+        spec = BoardSpec() if board_file is None else BoardSpec.read(board_file)
+        width, height = spec.size_m
+        centre = (width / 2, height / 2) if centre_mm is None else \
+            (centre_mm[0] / 1000.0, centre_mm[1] / 1000.0)
+        footprint = Footprint(centre_m=centre, radius_m=radius_mm / 1000.0,
+                              height_m=height_mm / 1000.0)
+        camera = None if camera_file is None else read_camera(camera_file)
+        paths = expand_images(photos)
+        with _progress(len(paths), "photographs") as bar:
+            report = run_capture(paths, output, footprint=footprint, spec=spec, camera=camera,
+                                 max_error_px=max_error_px, progress=bar.update)
+    except BAD_INPUT as exc:
+        raise _input_error(exc) from None
+    for name, why in report.refused:
+        click.echo(f"refused {name}: {why}", err=True)
+    cam = report.camera
+    source = ("calibrated from the photographs, RMS "
+              f"{report.calibration_rms_px:.2f} px" if report.calibration_rms_px is not None
+              else f"from {camera_file}")
+    click.echo(f"camera fx {cam.fx:.1f} fy {cam.fy:.1f} cx {cam.cx:.1f} cy {cam.cy:.1f} "
+               f"dist {[round(d, 4) for d in cam.dist]} ({source})")
+    click.echo(f"{len(report.kept)} of {len(paths)} photographs -> {output}/poses.csv "
+               f"(then: posevote train {output} --object-height-m {height_mm / 1000:g} "
+               f"-o model.npz; estimate with --camera {output}/camera.json)")
+
+
+@cli.command()
 @click.argument("model", type=click.Path(path_type=Path))
 @click.option("-o", "--output", required=True, type=click.Path(path_type=Path),
               help="PNG file to write.")
