@@ -118,7 +118,7 @@ def calibrated(share: ArrayLike, score: ArrayLike,
     Returns
     -------
     ndarray
-        Probabilities in (0, 1), the shape of ``share``.
+        Probabilities in [0, 1], the shape of ``share``.
 
     Examples
     --------
@@ -134,7 +134,8 @@ def calibrated(share: ArrayLike, score: ArrayLike,
     q = np.clip(p, _TINY, 1.0 - _TINY)
     s = np.maximum(np.asarray(score, dtype=np.float64), _TINY)
     z = a * np.log(q / (1.0 - q)) + b * np.log(s) + c
-    return 1.0 / (1.0 + np.exp(-z))
+    # Past +-700 the logistic is 0 or 1 to double precision (and exp would overflow).
+    return 1.0 / (1.0 + np.exp(-np.clip(z, -700.0, 700.0)))
 
 
 def with_probabilities(hypotheses: Sequence[Hypothesis], probes: ProbeSet,
