@@ -254,7 +254,7 @@ def estimate_images(model: str | Path, images: Sequence[Path], *,
 
 
 def _stamp(name: str) -> str:
-    """What tells a file's content changed without reading it: its size and change time."""
+    """What tells a file's content changed without reading it: its size and modification time."""
     try:
         st = os.stat(name)
     except OSError:
