@@ -75,11 +75,17 @@ def test_degenerate_input():
         mode_probabilities(DIRS, np.ones(3), _modes(0.0))
 
 
-def test_with_probabilities_sets_each_mode_and_keeps_the_pose():
+def _two_modes():
+    """Probes with peaks at 40 and 220 degrees, and a mode at each (the first the better)."""
     probes = _probes((40.0, 0.8), (220.0, 0.4))
     hyps = [Hypothesis(azimuth=np.radians(a), elevation=0.0, inplane=0.0, scale=1.0,
                        position=(0.0, 0.0), box=(0, 0, 1, 1), score=s, refined=True)
             for a, s in ((40.0, 0.9), (220.0, 0.5))]
+    return probes, hyps
+
+
+def test_with_probabilities_sets_each_mode_and_keeps_the_pose():
+    probes, hyps = _two_modes()
     out = with_probabilities(hyps, probes)
     assert out[0].azimuth == hyps[0].azimuth and out[0].probability > out[1].probability > 0
     assert np.isnan(hyps[0].probability)
@@ -102,10 +108,7 @@ def test_calibrated_is_the_logistic_of_share_and_score():
 
 
 def test_calibration_sets_the_best_mode_and_scales_the_others_to_what_is_left():
-    probes = _probes((40.0, 0.8), (220.0, 0.4))
-    hyps = [Hypothesis(azimuth=np.radians(a), elevation=0.0, inplane=0.0, scale=1.0,
-                       position=(0.0, 0.0), box=(0, 0, 1, 1), score=s, refined=True)
-            for a, s in ((40.0, 0.9), (220.0, 0.5))]
+    probes, hyps = _two_modes()
     raw = with_probabilities(hyps, probes)
     sure = with_probabilities(hyps, probes, (1.0, 0.0, 5.0))
     assert sure[0].probability == pytest.approx(float(calibrated(raw[0].probability, 0.9,
