@@ -280,3 +280,17 @@ def test_the_first_run_says_it_prepares_its_kernels(monkeypatch, tmp_path, model
     assert cli_module._kernels_compiled()
     result = CliRunner().invoke(cli, ["estimate", str(model_file), str(test_image)])
     assert result.exit_code == 0 and "preparing" not in result.output
+
+
+def test_the_first_runs_kernel_count_ends_before_the_result(monkeypatch, tmp_path):
+    from numba.core import event
+
+    import posevote.cli as cli_module
+
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "empty"))
+    before = len(event._registered.get("numba:compile", ()))
+    cli_module._first_run_notice()
+    assert len(event._registered["numba:compile"]) == before + 1
+    cli_module._first_run_done()
+    assert len(event._registered.get("numba:compile", ())) == before
+    assert cli_module._FIRST_RUN_DONE == []

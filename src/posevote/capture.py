@@ -5,10 +5,13 @@ photographs are taken from around it, by hand or by a robot. Each photograph
 shows the board's ChArUco corners, and so the camera's pose relative to the
 board (OpenCV's ``cv2.aruco``); with the object's footprint on the board
 (:class:`Footprint`: where it stands, its radius and height) that is the
-object's pose and its box. :func:`capture` calibrates the camera from the
-same photographs (or takes a given one), writes each usable photograph
-undistorted with its pose and box to ``poses.csv``, writes ``camera.json``,
-and names every photograph it refuses and why.
+object's pose, and the cylinder's outline on the image holds the object:
+:func:`object_mask` cuts it out (GrabCut, told what the board's squares look
+like there). :func:`capture` calibrates the camera from the same photographs
+(or takes a given one), writes each usable photograph undistorted with its
+pose, the mask's box, its mask and the image of the object's reference point
+to ``poses.csv``, writes ``camera.json``, and names every photograph it
+refuses and why.
 
 Frames. The board's frame is OpenCV's: origin at the printed board's
 top-left chessboard corner, ``x`` along its width (to the right as printed),
@@ -17,8 +20,9 @@ top-left chessboard corner, ``x`` along its width (to the right as printed),
 of the printed face, ``+x`` along the board's ``x``. Azimuth 0 therefore has
 the camera on the side of the board's right edge (as printed), and the
 elevation is the camera's height above the board's plane. The object's
-reference point, whose depth is written as ``distance_m``, is the
-footprint's centre raised by half the object's height.
+reference point, whose depth is written as ``distance_m`` and image as
+``origin_u``, ``origin_v`` (so that an estimate's ``t_cam_obj`` names it), is
+the footprint's centre raised by half the object's height.
 """
 
 from __future__ import annotations
@@ -49,6 +53,9 @@ MIN_CALIBRATION_VIEWS = 4
 
 #: Points around the footprint's rim that the box is projected from.
 _RIM_POINTS = 72
+
+#: The training folder's sub-folder of masks.
+_MASKS = "masks"
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -207,6 +214,30 @@ def calibrate(views: Sequence[tuple[NDArray[np.float32], NDArray[np.float32]]],
                   dist=tuple(float(d) for d in np.ravel(dist)[:5])), float(rms)
 
 
+def _board_as_background(photo: NDArray[np.uint8], board: NDArray[np.float64],
+                         label: NDArray[np.uint8]) -> None:
+    """Mark the outline's pixels that look as the board there as probably the background."""
+    colour = cv2.GaussianBlur(photo.astype(np.float64) / 255.0, (0, 0), 1.0)
+    grey = np.asarray(cv2.cvtColor(photo, cv2.COLOR_BGR2GRAY), dtype=np.float64) / 255.0
+    on = np.isfinite(board)
+    ring = on & (label == cv2.GC_BGD)
+    if np.count_nonzero(ring) < 50:
+        return
+    # The print's ink and paper as this photograph renders them: a line fit on the ring.
+    slope, offset = np.polyfit(board[ring], grey[ring], 1)
+    if slope <= 0.05:
+        return
+    expected = cv2.GaussianBlur(np.where(on, board, 0.5), (0, 0), 1.0) * slope + offset
+    # Either test marks a pixel (each alone left squares in the cut on some of the rendered
+    # photographs: docs/history/CAPTURE.md). The print is grey: a coloured pixel is not it.
+    loose = np.abs(colour - expected[..., None]).max(axis=2) < 0.25 * slope
+    # Or its grey level is the board's, as is its neighbourhood's (the squares' edges move a
+    # pixel with the pose).
+    near = cv2.dilate(np.abs(cv2.GaussianBlur(grey, (0, 0), 1.0) - expected), np.ones((3, 3)))
+    strict = (np.abs(grey - expected) < 0.15 * slope) & (near < 0.3 * slope)
+    label[on & (loose | strict) & (label == cv2.GC_PR_FGD)] = cv2.GC_PR_BGD
+
+
 def board_pose(view: tuple[NDArray[np.float32], NDArray[np.float32]], camera: Camera
                ) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
     """``R_cam_board``, ``t_cam_board`` (metres) and the RMS reprojection error (pixels) of
@@ -230,15 +261,84 @@ def object_pose(R_cam_board: NDArray[np.float64], t_cam_board: NDArray[np.float6
     return azimuth, elevation, inplane, R_cam_board @ footprint.reference_point() + t_cam_board
 
 
-def object_box(R_cam_board: NDArray[np.float64], t_cam_board: NDArray[np.float64],
-               footprint: Footprint, camera: Camera) -> tuple[float, float, float, float]:
-    """The box ``(x, y, w, h)`` of the footprint's cylinder as the undistorted camera sees it."""
+def outline(R_cam_board: NDArray[np.float64], t_cam_board: NDArray[np.float64],
+            footprint: Footprint, camera: Camera) -> NDArray[np.float64]:
+    """The footprint's cylinder as the undistorted camera sees it: the image of its rim,
+    ``(N, 2)`` pixels."""
     rim = footprint.rim() @ R_cam_board.T + t_cam_board
     if np.any(rim[:, 2] <= 0):
         raise ValueError("the object is not in front of the camera")
-    u = camera.fx * rim[:, 0] / rim[:, 2] + camera.cx
-    v = camera.fy * rim[:, 1] / rim[:, 2] + camera.cy
-    return float(u.min()), float(v.min()), float(u.max() - u.min()), float(v.max() - v.min())
+    return np.column_stack([camera.fx * rim[:, 0] / rim[:, 2] + camera.cx,
+                            camera.fy * rim[:, 1] / rim[:, 2] + camera.cy])
+
+
+def object_box(R_cam_board: NDArray[np.float64], t_cam_board: NDArray[np.float64],
+               footprint: Footprint, camera: Camera) -> tuple[float, float, float, float]:
+    """The box ``(x, y, w, h)`` of the footprint's cylinder as the undistorted camera sees it."""
+    uv = outline(R_cam_board, t_cam_board, footprint, camera)
+    (x0, y0), (x1, y1) = uv.min(axis=0), uv.max(axis=0)
+    return float(x0), float(y0), float(x1 - x0), float(y1 - y0)
+
+
+def board_view(spec: BoardSpec, R_cam_board: NDArray[np.float64],
+               t_cam_board: NDArray[np.float64], camera: Camera, size: tuple[int, int]
+               ) -> NDArray[np.float64]:
+    """The printed squares as the undistorted camera sees them: grey levels in ``[0, 1]``,
+    NaN off the squares; ``size`` is the photograph's ``(width, height)``."""
+    ppm = 2000.0   # board pixels per metre: 2 mm squares' detail at 0.5 mm
+    squares = spec.board().generateImage((int(spec.size_m[0] * ppm), int(spec.size_m[1] * ppm)),
+                                         marginSize=0).astype(np.float32) / 255.0
+    H = camera.K @ np.column_stack([R_cam_board[:, 0], R_cam_board[:, 1], t_cam_board]) \
+        @ np.diag([1.0 / ppm, 1.0 / ppm, 1.0])
+    seen = cv2.warpPerspective(squares, H, size, flags=cv2.INTER_AREA, borderValue=np.nan)
+    return np.asarray(seen, dtype=np.float64)
+
+
+def object_mask(photo: NDArray[np.uint8], rim: NDArray[np.float64],
+                board: NDArray[np.float64] | None = None) -> NDArray[np.bool_] | None:
+    """The object's pixels in an (undistorted, BGR) photograph, within the image ``rim`` of its
+    footprint's cylinder (:func:`outline`).
+
+    GrabCut, started with the cylinder's outline as probably the object, the ring around it
+    as the background and, given the board as the camera sees it (:func:`board_view`), the
+    outline's pixels that look as the board there as probably the background. None when the
+    cut keeps less than a twentieth of the outline (nothing there to tell from the board).
+    """
+    h, w = photo.shape[:2]
+    hull = cv2.convexHull(np.round(rim).astype(np.int32))
+    (x0, y0), (x1, y1) = rim.min(axis=0), rim.max(axis=0)
+    # The ring: a quarter of the outline's size all round, whose colours are the background's.
+    pad = 0.25 * max(x1 - x0, y1 - y0)
+    c0, r0 = max(int(x0 - pad), 0), max(int(y0 - pad), 0)
+    c1, r1 = min(int(np.ceil(x1 + pad)) + 1, w), min(int(np.ceil(y1 + pad)) + 1, h)
+    start = np.full((r1 - r0, c1 - c0), cv2.GC_BGD, np.uint8)
+    cv2.fillConvexPoly(start, hull - np.array([c0, r0], np.int32), int(cv2.GC_PR_FGD))
+    inside = int(np.count_nonzero(start == cv2.GC_PR_FGD))
+    if inside < 16 or inside == start.size:
+        return None
+    if board is not None:
+        _board_as_background(photo[r0:r1, c0:c1], board[r0:r1, c0:c1], start)
+        if np.count_nonzero(start == cv2.GC_PR_FGD) < inside / 20:
+            return None   # the outline shows the board: nothing stands there
+    label = start.copy()
+    background, foreground = np.zeros((1, 65)), np.zeros((1, 65))
+    cv2.setRNGSeed(0)   # GrabCut's k-means draws from OpenCV's RNG: the same photo, the same cut
+    cv2.grabCut(np.ascontiguousarray(photo[r0:r1, c0:c1]), label, None,  # type: ignore[call-overload]
+                background, foreground, 5, cv2.GC_INIT_WITH_MASK)
+    cut = np.asarray((label == cv2.GC_FGD) | (label == cv2.GC_PR_FGD), dtype=np.uint8)
+    count, parts, stats, _ = cv2.connectedComponentsWithStats(cut, connectivity=8)
+    if count < 2:
+        return None
+    # The largest part, its holes filled: pieces of the board's squares cut apart are dropped.
+    keep = parts == 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
+    outside = np.pad(~keep, 1, constant_values=True).astype(np.uint8)
+    cv2.floodFill(outside, None, (0, 0), 2)
+    keep |= outside[1:-1, 1:-1] == 1
+    if np.count_nonzero(keep) < inside / 20:
+        return None
+    mask = np.zeros((h, w), bool)
+    mask[r0:r1, c0:c1] = keep
+    return mask
 
 
 @dataclass(frozen=True)
@@ -253,7 +353,8 @@ class CaptureReport:
         The calibration's RMS reprojection error (None: the camera was given).
     kept : list of dict
         Per written photograph: its name, azimuth, elevation, in-plane angle (degrees),
-        distance (metres), box and reprojection error.
+        box, whether it has a mask, distance (metres), origin (pixels) and reprojection
+        error.
     refused : list of (str, str)
         Per refused photograph: its name and why.
     """
@@ -276,8 +377,10 @@ def capture(photos: Sequence[str | Path], out: str | Path, *, footprint: Footpri
         The photographs (one camera, one image size).
     out : path
         The training folder to write: the usable photographs undistorted (PNG),
-        ``poses.csv`` (image, azimuth, elevation, in-plane angle, box, distance)
-        and ``camera.json`` (the camera, with its distortion).
+        their masks (``masks/``), ``poses.csv`` (image, azimuth, elevation,
+        in-plane angle, box, mask, distance, origin) and ``camera.json`` (the
+        camera, with its distortion). Where no mask can be cut, the row has the
+        cylinder's box and no mask.
     footprint : Footprint
     spec : BoardSpec, optional
         The printed board (:meth:`BoardSpec.read` of the file :func:`write_board` wrote).
@@ -297,7 +400,7 @@ def capture(photos: Sequence[str | Path], out: str | Path, *, footprint: Footpri
     ValueError
         When the photographs differ in size, too few show the board, or none is kept.
     """
-    from posevote.data import read_image
+    from posevote.data import read_bgr8
     from posevote.data.training_set import TrainingSet, write_poses_csv
 
     if not 0.1 <= max_error_px <= 20:
@@ -306,16 +409,17 @@ def capture(photos: Sequence[str | Path], out: str | Path, *, footprint: Footpri
     if any(Path(p).resolve().parent == out.resolve() for p in photos):
         raise ValueError(f"{out}: holds the photographs themselves; write the training "
                          "folder elsewhere")
-    seen: list[tuple[Path, NDArray[np.float64], tuple[Any, Any] | None]] = []
+    seen: list[tuple[Path, NDArray[np.uint8], tuple[Any, Any] | None]] = []
     size: tuple[int, int] | None = None
     for photo in map(Path, photos):
-        image = read_image(photo)
+        image = read_bgr8(photo)
         if size is None:
             size = (image.shape[1], image.shape[0])
         elif (image.shape[1], image.shape[0]) != size:
             raise ValueError(f"{photo}: {image.shape[1]} x {image.shape[0]} pixels, the others "
                              f"{size[0]} x {size[1]}; give photographs of one camera and size")
-        seen.append((photo, image, detect(np.round(image * 255).astype(np.uint8), spec)))
+        grey = np.asarray(cv2.cvtColor(image, cv2.COLOR_BGR2GRAY), dtype=np.uint8)
+        seen.append((photo, image, detect(grey, spec)))
         if progress is not None:
             progress(1)
     if size is None:
@@ -328,7 +432,7 @@ def capture(photos: Sequence[str | Path], out: str | Path, *, footprint: Footpri
         camera, rms = calibrate([v for _, _, v in views], size)
     plain = Camera(fx=camera.fx, fy=camera.fy, cx=camera.cx, cy=camera.cy)
     rows: list[dict[str, Any]] = []
-    images: list[tuple[str, NDArray[np.float64]]] = []
+    images: list[tuple[str, NDArray[np.uint8], NDArray[np.bool_] | None]] = []
     for photo, image, view in views:
         R, t, error = board_pose(view, camera)
         if error > max_error_px:
@@ -336,33 +440,49 @@ def capture(photos: Sequence[str | Path], out: str | Path, *, footprint: Footpri
                                         f"(over {max_error_px:g} px): the pose is unreliable"))
             continue
         azimuth, elevation, inplane, point = object_pose(R, t, footprint)
-        box = object_box(R, t, footprint, plain)
-        x, y, w, h = box
-        if x < 0 or y < 0 or x + w > size[0] or y + h > size[1]:
+        rim = outline(R, t, footprint, plain)
+        (x0, y0), (x1, y1) = rim.min(axis=0), rim.max(axis=0)
+        if x0 < 0 or y0 < 0 or x1 > size[0] or y1 > size[1]:
             refused.append((str(photo), "the object's box leaves the photograph"))
             continue
         name = f"{photo.stem}.png"
-        if any(name == n for n, _ in images):
+        if any(name == n for n, _, _ in images):
             name = f"{photo.stem}_{len(images)}.png"
-        images.append((name, camera.undistort(image)))
+        undistorted = np.round(np.clip(camera.undistort(image.astype(np.float64)), 0, 255)
+                               ).astype(np.uint8)
+        mask = object_mask(undistorted, rim, board_view(spec, R, t, plain, size))
+        if mask is None:
+            box = (float(x0), float(y0), float(x1 - x0), float(y1 - y0))
+        else:
+            rr, cc = np.nonzero(mask)
+            box = (float(cc.min()), float(rr.min()), float(np.ptp(cc) + 1), float(np.ptp(rr) + 1))
+        images.append((name, undistorted, mask))
         rows.append({"image": name, "azimuth_deg": math.degrees(azimuth),
                      "elevation_deg": math.degrees(elevation),
                      "inplane_deg": math.degrees(inplane), "box": box,
-                     "distance_m": float(point[2]), "error_px": error})
+                     "mask": mask is not None, "distance_m": float(point[2]),
+                     "origin": (float(plain.fx * point[0] / point[2] + plain.cx),
+                                float(plain.fy * point[1] / point[2] + plain.cy)),
+                     "error_px": error})
     if not rows:
         raise ValueError("no photograph could be used: " + "; ".join(f"{p}: {why}"
                                                                      for p, why in refused))
     out.mkdir(parents=True, exist_ok=True)
     from posevote.evaluation.plots import write_png
 
-    for name, image in images:
-        grey = np.round(np.clip(image, 0, 1) * 255).astype(np.uint8)
-        write_png(out / name, np.asarray(cv2.cvtColor(grey, cv2.COLOR_GRAY2BGR), dtype=np.uint8))
+    masks: list[Path | None] = []
+    for name, image, mask in images:
+        write_png(out / name, image)
+        masks.append(None if mask is None else out / _MASKS / name)
+        if mask is not None:
+            (out / _MASKS).mkdir(exist_ok=True)
+            write_png(out / _MASKS / name, mask.astype(np.uint8) * 255)
     write_poses_csv(TrainingSet(
         images=tuple(out / r["image"] for r in rows),
         poses=np.radians([[r["azimuth_deg"], r["elevation_deg"], r["inplane_deg"]]
                           for r in rows]),
-        boxes=np.array([r["box"] for r in rows]), masks=(),
-        distances=np.array([r["distance_m"] for r in rows])), out)
+        boxes=np.array([r["box"] for r in rows]), masks=tuple(masks),
+        distances=np.array([r["distance_m"] for r in rows]),
+        origins=np.array([r["origin"] for r in rows])), out)
     atomic_write_text(out / "camera.json", json.dumps(camera.to_dict(), indent=2) + "\n")
     return CaptureReport(camera=camera, calibration_rms_px=rms, kept=rows, refused=refused)

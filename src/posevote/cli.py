@@ -75,10 +75,51 @@ def _kernels_compiled() -> bool:
 
 
 def _first_run_notice() -> None:
-    """Say, once after installing, why the first run is slow."""
-    if not _kernels_compiled():
-        click.echo("preparing posevote's compiled kernels: once after installing, about 20 s "
-                   "...", err=True)
+    """Say, once after installing, why the first run is slow, and count the kernels as
+    numba compiles them (this process's; workers compile their own in silence)."""
+    if _kernels_compiled():
+        return
+    click.echo("preparing posevote's compiled kernels: once after installing, about 20 s "
+               "...", err=True)
+    import atexit
+
+    from numba.core import event
+    from tqdm import tqdm
+
+    bar = tqdm(desc="compiled", unit=" kernels", file=sys.stderr, leave=False,
+               disable=not sys.stderr.isatty())
+
+    class _Counter(event.Listener):
+        def on_start(self, ev: Any) -> None:
+            pass
+
+        def on_end(self, ev: Any) -> None:
+            func = getattr((ev.data or {}).get("dispatcher"), "py_func", None)
+            if getattr(func, "__module__", "").startswith("posevote."):
+                bar.update(1)
+
+    counter = _Counter()
+    event.register("numba:compile", counter)
+
+    live = [True]
+
+    def done() -> None:
+        if live.pop() if live else False:
+            event.unregister("numba:compile", counter)
+            bar.close()
+
+    _FIRST_RUN_DONE.append(done)
+    atexit.register(done)
+
+
+#: What ends the first run's kernel count (:func:`_first_run_notice`).
+_FIRST_RUN_DONE: list[Any] = []
+
+
+def _first_run_done() -> None:
+    """End the kernel count before a command prints its result on the same terminal."""
+    while _FIRST_RUN_DONE:
+        _FIRST_RUN_DONE.pop()()
 
 
 def _preset_name(ctx: click.Context, param: click.Parameter, value: str | None) -> str | None:
@@ -328,6 +369,7 @@ def train(source: Path, output: Path, layout: str, objects: str | None, cars: st
         est.save(output)
     except BAD_INPUT as exc:
         raise _input_error(exc) from None
+    _first_run_done()
     m, full = est.model_, est.full_model_
     kept = "" if m is full else f" (pruned from {full.n_features})"
     click.echo(f"trained on {m.n_views} images ({len(m.instance_names)} instance(s)), "
@@ -465,6 +507,7 @@ def _estimate_one(est: Any, image: Path, *, as_json: bool, overlay: Path | None,
 
     img = read_image(image)
     result = est.estimate(img, camera=camera)
+    _first_run_done()
     if overlay is not None:
         from posevote.evaluation.plots import draw_overlay, write_png
 
@@ -674,9 +717,11 @@ def capture(photos: tuple[Path, ...], output: Path, board_file: Path | None, hei
               else f"from {camera_file}")
     click.echo(f"camera fx {cam.fx:.1f} fy {cam.fy:.1f} cx {cam.cx:.1f} cy {cam.cy:.1f} "
                f"dist {[round(d, 4) for d in cam.dist]} ({source})")
-    click.echo(f"{len(report.kept)} of {len(paths)} photographs -> {output}/poses.csv "
-               f"(then: posevote train {output} --object-height-m {height_mm / 1000:g} "
-               f"-o model.npz; estimate with --camera {output}/camera.json)")
+    masked = sum(bool(r["mask"]) for r in report.kept)
+    click.echo(f"{len(report.kept)} of {len(paths)} photographs ({masked} with a mask) -> "
+               f"{output}/poses.csv (then: posevote train {output} --camera "
+               f"{output}/camera.json -o model.npz; estimate with --camera "
+               f"{output}/camera.json)")
 
 
 @cli.command()
@@ -702,10 +747,10 @@ def weights(model: Path, output: Path, views: int) -> None:
 @cli.command()
 @click.argument("protocol", type=click.Choice(["coil-category", "coil-loio", "epfl-single",
                                                "epfl-10-10", "epfl-cv", "rendered-sphere",
-                                               "frames"]))
+                                               "rendered-capture", "frames"]))
 @click.option("--data", type=click.Path(path_type=Path), default=None,
               help="Data folder: ../shared/data, or the dataset's own folder (not for "
-                   "rendered-sphere, which renders its own).")
+                   "rendered-sphere and rendered-capture, which render their own).")
 @click.option("--out", "out", type=click.Path(path_type=Path), default=None,
               help="Results folder (default: results/PROTOCOL). Rerun with the same folder "
                    "to resume.")
@@ -720,15 +765,16 @@ def weights(model: Path, output: Path, views: int) -> None:
               help="Estimate the test images on this Dask cluster instead of --jobs "
                    "(pip install 'posevote[dask]').")
 @click.option("--images", type=click.IntRange(1, 10_000), default=None,
-              help="rendered-sphere: test images [default: 40]; frames: frames with the "
-                   "object per object and size [default: 2].")
+              help="rendered-sphere: test images [default: 40]; rendered-capture: test "
+                   "images off the board [default: 24]; frames: frames with the object per "
+                   "object and size [default: 2].")
 @click.option("--preset", default=None, callback=_preset_name,
               help="frames only: the preset of the objects' models [default: cluttered].")
 def evaluate(protocol: str, data: Path | None, out: Path | None, jobs: int, every: int,
              rows: str | None, scheduler: str | None, images: int | None,
              preset: str | None) -> None:
     """Run an evaluation PROTOCOL (the paper's, on real data; the rendered sphere; the
-    frames benchmark)."""
+    rendered capture check; the frames benchmark)."""
     from posevote.evaluation.protocols import load_protocol
     from posevote.evaluation.report import markdown_table
     from posevote.evaluation.runner import run_protocol
@@ -752,6 +798,14 @@ def evaluate(protocol: str, data: Path | None, out: Path | None, jobs: int, ever
             if given:
                 raise click.BadParameter("not used by rendered-sphere", param_hint=name)
         _evaluate_sphere(out, jobs=jobs, scheduler=scheduler, images=images or 40)
+        return
+    if protocol == "rendered-capture":
+        for name, given in (("--data", data is not None), ("--every", every != 1),
+                            ("--rows", rows is not None), ("--scheduler", scheduler is not None),
+                            ("--jobs", jobs != 1)):
+            if given:
+                raise click.BadParameter("not used by rendered-capture", param_hint=name)
+        _evaluate_capture(out, images=images or 24)
         return
     if data is None:
         raise click.BadParameter(f"{protocol} needs the data folder", param_hint="--data")
@@ -796,6 +850,19 @@ def _evaluate_frames(out: Path, data: Path, *, jobs: int, scheduler: str | None,
         progress.close()
     click.echo(report_text(setup, summary))
     click.echo(f"report, summary.json, records.jsonl and calibration.png in {out}/")
+
+
+def _evaluate_capture(out: Path, *, images: int) -> None:
+    from posevote.evaluation.capture_check import CaptureSetup, report_text, run_capture_check
+
+    try:
+        summary = run_capture_check(CaptureSetup(tests=images), out,
+                                    log=lambda m: click.echo(m, err=True))
+    except BAD_INPUT as exc:
+        raise _input_error(exc) from None
+    click.echo(report_text(summary))
+    click.echo(f"report and summary.json in {out}/; the photographs in {out}/photos, the "
+               f"captured training folder in {out}/captured")
 
 
 def _evaluate_sphere(out: Path, *, jobs: int, scheduler: str | None, images: int) -> None:

@@ -2,7 +2,7 @@ import cv2
 import numpy as np
 import pytest
 
-from posevote.data import as_gray_float, read_image, read_mask
+from posevote.data import as_gray_float, read_bgr8, read_image, read_mask
 
 
 def test_accepts_grey_rgb_rgba_16bit(tmp_path):
@@ -15,6 +15,21 @@ def test_accepts_grey_rgb_rgba_16bit(tmp_path):
     assert ref.shape == (8, 8) and ref.dtype == np.float64
     for name in ("c.png", "a.png", "w.png"):
         assert np.allclose(read_image(tmp_path / name), ref, atol=1 / 255)
+
+
+def test_colour_files_read_as_8_bit_bgr(tmp_path):
+    bgr = np.zeros((4, 6, 3), np.uint8)
+    bgr[..., 0], bgr[..., 2] = 200, 40
+    cv2.imwrite(str(tmp_path / "c.png"), bgr)
+    cv2.imwrite(str(tmp_path / "w.png"), bgr.astype(np.uint16) * 257)
+    cv2.imwrite(str(tmp_path / "g.png"), bgr[..., 0])
+    assert np.array_equal(read_bgr8(tmp_path / "c.png"), bgr)
+    assert np.array_equal(read_bgr8(tmp_path / "w.png"), bgr)
+    grey = read_bgr8(tmp_path / "g.png")
+    assert grey.shape == (4, 6, 3) and np.all(grey == 200)
+    (tmp_path / "bad.png").write_bytes(b"not an image")
+    with pytest.raises(ValueError, match="bad.png"):
+        read_bgr8(tmp_path / "bad.png")
 
 
 def test_colour_order_is_rgb():

@@ -49,3 +49,27 @@ def test_the_mesh_origin_is_given_in_the_camera_frame():
         u, w = f * v.origin[:2] / v.origin[2] + 31.5
         assert v.mask[int(round(w)), int(round(u))]
     assert np.ptp([v.origin for v in views], axis=0).max() > 1e-3
+
+
+def test_a_posed_render_puts_the_object_where_the_pinhole_does():
+    from posevote.evaluation.rendering import mesh_size, render_posed
+    from posevote.geometry import rotation_from_pose
+
+    extent = mesh_size()
+    # From straight above, 0.5 m up: the footprint is centred on the principal point and
+    # as wide as the mesh at that depth.
+    R = rotation_from_pose(0.0, np.radians(89.9), 0.0)
+    t = np.array([0.0, 0.0, 0.5])
+    (rgb, mask), = render_posed([(R, t)], intrinsics=(600.0, 600.0, 320.0, 240.0),
+                                size=(640, 480))
+    rows, cols = np.nonzero(mask)
+    assert rgb.shape == (480, 640, 3) and rgb.dtype == np.uint8
+    assert abs((cols.min() + cols.max()) / 2 - 320) <= 2
+    assert abs((rows.min() + rows.max()) / 2 - 240) <= 2
+    near = 0.5 - extent[2]      # the top is nearer than the base: the widest it can look
+    assert 600 * extent[1] / 0.5 - 3 <= np.ptp(cols) + 1 <= 600 * extent[1] / near + 3
+    # From the side at the object's base height: it stands on the horizon row.
+    R = rotation_from_pose(0.0, 0.0, 0.0)
+    (_, mask), = render_posed([(R, t)], intrinsics=(600.0, 600.0, 320.0, 240.0),
+                              size=(640, 480))
+    assert abs(np.nonzero(mask)[0].max() - 240) <= 1

@@ -1,6 +1,6 @@
 """Stage 0: images and pose-annotated training sets."""
 
-from posevote.data.images import as_gray_float, read_image, read_mask
+from posevote.data.images import as_gray_float, read_bgr8, read_image, read_mask
 from posevote.data.toy import toy_views
 from posevote.data.training_set import (
     TrainingSet,
@@ -19,6 +19,7 @@ __all__ = [
     "object_mask",
     "read_coil",
     "read_epfl",
+    "read_bgr8",
     "read_image",
     "read_mask",
     "read_poses_csv",

@@ -283,7 +283,27 @@ def read_image(path: str | Path) -> NDArray[np.float64]:
         If the file cannot be decoded as an image, is damaged or truncated,
         is over the pixel limit, or the image is empty.
     """
-    path = Path(path)
+    # OpenCV decodes colour as BGR(A).
+    return as_gray_float(_read_upright(Path(path)), name=str(path), channels="bgr")
+
+
+def read_bgr8(path: str | Path) -> NDArray[np.uint8]:
+    """Read an image file as 8-bit BGR colour, ``(H, W, 3)``, upright; checked and refused
+    as :func:`read_image` (a grey file gives three equal channels)."""
+    raw = _read_upright(Path(path))
+    as_gray_float(raw, name=str(path), channels="bgr")   # its pixel type, size and values
+    if raw.dtype == np.uint16:
+        raw = (raw >> 8).astype(np.uint8)
+    elif raw.dtype != np.uint8:
+        raw = np.round(np.clip(raw.astype(np.float64), 0.0, 1.0) * 255).astype(np.uint8)
+    if raw.ndim == 2 or raw.shape[2] == 1:
+        return np.ascontiguousarray(np.repeat(raw.reshape(raw.shape[0], raw.shape[1], 1), 3,
+                                              axis=2))
+    return np.ascontiguousarray(raw[..., :3])
+
+
+def _read_upright(path: Path) -> NDArray:
+    """The file's decoded pixels as stored by OpenCV (BGR(A), any depth), turned upright."""
     if not path.is_file():
         raise FileNotFoundError(f"image file not found: {path}")
     # No image within the pixel limit needs more than 8 bytes a pixel on disk.
@@ -304,9 +324,7 @@ def read_image(path: str | Path) -> NDArray[np.float64]:
     if raw is None:
         raise ValueError(f"{path}: cannot decode this file as an image (unreadable or not an image)")
     # The pixels as the photograph is seen (OpenCV's IMREAD_UNCHANGED keeps them as stored).
-    raw = np.ascontiguousarray(_UPRIGHT[orientation](raw))
-    # OpenCV decodes colour as BGR(A).
-    return as_gray_float(raw, name=str(path), channels="bgr")
+    return np.ascontiguousarray(_UPRIGHT[orientation](raw))
 
 
 def read_mask(path: str | Path) -> NDArray[np.bool_]:

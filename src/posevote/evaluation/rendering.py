@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -136,3 +137,121 @@ def render_turntable(azimuths: NDArray[np.float64], *, size: int = 128, elevatio
         return out
     finally:
         pybullet.disconnect(client)
+
+
+def gl_projection(fx: float, fy: float, cx: float, cy: float, size: tuple[int, int], *,
+                  near: float = 0.01, far: float = 20.0) -> list[float]:
+    """pybullet's (OpenGL's, column-major) projection matrix of a pinhole camera: focal
+    lengths and principal point in pixels, ``size`` the image's ``(width, height)``."""
+    w, h = size
+    # pybullet's tiny renderer draws a row higher than the pinhole puts it: one down.
+    cy = cy + 1.0
+    P = np.array([[2 * fx / w, 0.0, 1.0 - 2 * cx / w, 0.0],
+                  [0.0, 2 * fy / h, 2 * cy / h - 1.0, 0.0],
+                  [0.0, 0.0, -(far + near) / (far - near), -2 * far * near / (far - near)],
+                  [0.0, 0.0, -1.0, 0.0]])
+    return [float(v) for v in P.T.ravel()]
+
+
+def gl_view(R_cam_world: NDArray[np.float64], t_cam_world: NDArray[np.float64]) -> list[float]:
+    """pybullet's view matrix of an OpenCV camera pose (x right, y down, z ahead)."""
+    M = np.eye(4)
+    M[:3, :3] = R_cam_world
+    M[:3, 3] = t_cam_world
+    return [float(v) for v in (np.diag([1.0, -1.0, -1.0, 1.0]) @ M).T.ravel()]
+
+
+def render_posed(poses: Sequence[tuple[NDArray[np.float64], NDArray[np.float64]]], *,
+                 intrinsics: tuple[float, float, float, float], size: tuple[int, int],
+                 mesh: str = "duck_vhacd.urdf",
+                 base_euler: tuple[float, float, float] = (np.pi / 2, 0.0, 0.0)
+                 ) -> list[tuple[NDArray[np.uint8], NDArray[np.bool_]]]:
+    """Render a mesh of ``pybullet_data`` standing on the plane ``z = 0`` from given camera
+    poses: its colour image (RGB, uint8) and its mask per pose.
+
+    The mesh stands in its rest orientation with its bounding box's bottom centre at the
+    world's origin, ``+z`` up: the object frame of a footprint
+    (:class:`posevote.capture.Footprint`) centred under it.
+
+    Parameters
+    ----------
+    poses : sequence of (ndarray, ndarray)
+        ``R_cam_world`` (3x3) and ``t_cam_world`` (metres), OpenCV's camera axes.
+    intrinsics : (fx, fy, cx, cy)
+        The pinhole camera, pixels (no distortion).
+    size : (int, int)
+        The image's width and height.
+    mesh, base_euler
+        As :func:`render_turntable`.
+    """
+    import pybullet
+    import pybullet_data
+
+    fx, fy, cx, cy = intrinsics
+    client = pybullet.connect(pybullet.DIRECT)
+    try:
+        pybullet.setAdditionalSearchPath(pybullet_data.getDataPath(), physicsClientId=client)
+        rest = pybullet.getQuaternionFromEuler(list(base_euler))
+        body = pybullet.loadURDF(mesh, useFixedBase=True, baseOrientation=rest,
+                                 physicsClientId=client)
+        lo, hi = _visual_bounds(pybullet, body, client)
+        base = np.array([(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, lo[2]])
+        position, _ = pybullet.getBasePositionAndOrientation(body, physicsClientId=client)
+        pybullet.resetBasePositionAndOrientation(body, list(np.asarray(position) - base), rest,
+                                                 physicsClientId=client)
+        proj = gl_projection(fx, fy, cx, cy, size)
+        out = []
+        for R, t in poses:
+            _, _, rgba, _, seg = pybullet.getCameraImage(
+                size[0], size[1], gl_view(R, t), proj, renderer=pybullet.ER_TINY_RENDERER,
+                physicsClientId=client)
+            rgb = np.reshape(np.asarray(rgba, dtype=np.uint8), (size[1], size[0], 4))[..., :3]
+            mask = (np.reshape(np.asarray(seg), (size[1], size[0])) & 0xFFFFFF) == body
+            out.append((np.ascontiguousarray(rgb), mask))
+        return out
+    finally:
+        pybullet.disconnect(client)
+
+
+def mesh_size(mesh: str = "duck_vhacd.urdf",
+              base_euler: tuple[float, float, float] = (np.pi / 2, 0.0, 0.0)
+              ) -> NDArray[np.float64]:
+    """The extent (x, y, z; metres) of a mesh of ``pybullet_data`` in its rest orientation."""
+    import pybullet
+    import pybullet_data
+
+    client = pybullet.connect(pybullet.DIRECT)
+    try:
+        pybullet.setAdditionalSearchPath(pybullet_data.getDataPath(), physicsClientId=client)
+        body = pybullet.loadURDF(mesh, useFixedBase=True,
+                                 baseOrientation=pybullet.getQuaternionFromEuler(list(base_euler)),
+                                 physicsClientId=client)
+        lo, hi = _visual_bounds(pybullet, body, client)
+        return np.asarray(hi - lo, dtype=np.float64)
+    finally:
+        pybullet.disconnect(client)
+
+
+def _visual_bounds(pybullet: Any, body: int, client: int
+                   ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The world bounds of a one-link body's visual meshes (``.obj``): its collision
+    hull's (``getAABB``) can be larger or offset."""
+    position, orientation = pybullet.getBasePositionAndOrientation(body, physicsClientId=client)
+    inertial_pos, inertial_orn = pybullet.getDynamicsInfo(body, -1, physicsClientId=client)[3:5]
+    # pybullet's base pose is its centre of mass: the link frame is that less the inertial offset.
+    inv_pos, inv_orn = pybullet.invertTransform(inertial_pos, inertial_orn)
+    link_pos, link_orn = pybullet.multiplyTransforms(position, orientation, inv_pos, inv_orn)
+    points = []
+    for shape in pybullet.getVisualShapeData(body, physicsClientId=client):
+        scale, filename, local_pos, local_orn = shape[3], shape[4], shape[5], shape[6]
+        with open(filename, encoding="utf-8", errors="replace") as handle:
+            vertices = np.array([[float(x) for x in line.split()[1:4]] for line in handle
+                                 if line.startswith("v ")])
+        pos, orn = pybullet.multiplyTransforms(link_pos, link_orn, local_pos, local_orn)
+        R = np.reshape(pybullet.getMatrixFromQuaternion(orn), (3, 3))
+        points.append((vertices * np.asarray(scale)) @ R.T + np.asarray(pos))
+    if not points:
+        lo, hi = pybullet.getAABB(body, physicsClientId=client)
+        return np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
+    stacked = np.vstack(points)
+    return stacked.min(axis=0), stacked.max(axis=0)
