@@ -122,6 +122,16 @@ def _first_run_done() -> None:
         _FIRST_RUN_DONE.pop()()
 
 
+def _say(message: str) -> None:
+    """A line on stdout that a running kernel count (on the terminal's stderr) steps around."""
+    if _FIRST_RUN_DONE:
+        from tqdm import tqdm
+
+        tqdm.write(message, file=sys.stdout)
+    else:
+        click.echo(message)
+
+
 def _preset_name(ctx: click.Context, param: click.Parameter, value: str | None) -> str | None:
     """A ``--preset`` value that names a preset (a usage error otherwise)."""
     from posevote.presets import PRESETS
@@ -894,9 +904,10 @@ def demo(output: Path, n_test: int, seed: int) -> None:
     _output_folder(output, "-o")
     _first_run_notice()
     try:
-        summary = run_demo(output, n_test=n_test, seed=seed, log=click.echo)
+        summary = run_demo(output, n_test=n_test, seed=seed, log=_say)
     except BAD_INPUT as exc:
         raise _input_error(exc) from None
+    _first_run_done()
     click.echo(f"\nazimuth error over {summary['n']} cluttered, 20%-occluded test images: "
                f"median {summary['median']:.1f} deg, mean {summary['mean']:.1f} deg, "
                f"{summary['under_22_5']:.0f}% under 22.5 deg; position within 5 px: "
