@@ -81,6 +81,13 @@ estimate --depth-range` does:
 [`results/rendered_sphere_known_depths.md`](results/rendered_sphere_known_depths.md)
 (`--known-depths`).
 
+Capture from a printed board (issue 65): a textured duck rendered standing
+on the board, photographed from around through a distorting lens, captured,
+trained and tested off the board against a model of the true poses, boxes
+and masks, over three seeds: `benchmarks/capture_check.py`
+([`results/capture_check.md`](results/capture_check.md)); one seed with its
+files: `posevote evaluate rendered-capture`.
+
 Found means found (issue 63): the 40 development COIL objects looked for in
 640×480 and 1280×720 mosaics of EPFL frames at 0.4-3 times their training
 size, and frames without them, `posevote evaluate frames --data ../shared/data

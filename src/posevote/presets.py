@@ -57,7 +57,7 @@ class Preset:
 # most similar training car's model re-estimating near the category's mode.
 _EPFL_SEARCH = SearchOptions(viewpoint_step_deg=10.0, scale_range=(0.7, 1.45), scale_steps=6,
                              object_kernel=True, chance_correction=True, density_cap=0.6,
-                             max_search_features=1000, calibration=(0.495, 5.838, 11.014))
+                             max_search_features=1000, calibration=(0.475, 6.409, 12.042))
 
 # Each preset's ``SearchOptions.calibration``: the logistic fit of "right" (within 30 deg,
 # box found) on its development estimates, wrong objects and empty frames among them
@@ -93,11 +93,11 @@ PRESETS: dict[str, Preset] = {p.name: p for p in (
                  "the frames benchmark (benchmarks/default_thresholds.py, "
                  "docs/results/default_thresholds.md)",
         # The lowest score that at most 2.5% of the empty frames exceed.
-        params={"min_score": 0.0645,
+        params={"min_score": 0.0771,
                 "search": SearchOptions(inplane_range_deg=(-30.0, 30.0), inplane_step_deg=5.0,
                                         scale_range=(0.7, 1.3), scale_steps=7,
                                         object_kernel=True, chance_correction=True,
-                                        density_cap=0.5, calibration=(0.755, 3.089, 7.327)),
+                                        density_cap=0.5, calibration=(0.630, 6.323, 15.304)),
                 "refine": RefineOptions(rescale=False, local="profile", share_scale=True),
                 "templates": TemplateOptions()}),
     Preset(
@@ -109,10 +109,10 @@ PRESETS: dict[str, Preset] = {p.name: p for p in (
         measured="epfl-single (car 1, 40 training frames) 0.58 / 0.90 deg "
                  "(docs/results/epfl-single); min_score as cluttered's "
                  "(docs/results/default_thresholds.md)",
-        params={"min_score": 0.110, "edges": EdgeOptions(max_train_features=150),
+        params={"min_score": 0.138, "edges": EdgeOptions(max_train_features=150),
                 "search": SearchOptions(viewpoint_subdivisions=2, scale_steps=5,
                                         object_kernel=True, chance_correction=True,
-                                        calibration=(0.0, 5.602, 10.002)),
+                                        calibration=(0.0, 6.367, 11.381)),
                 "refine": RefineOptions(rescale=False, local="profile"), "morph_views": True}),
     Preset(
         name="category",
@@ -125,7 +125,7 @@ PRESETS: dict[str, Preset] = {p.name: p for p in (
                  "8.1% flips, 97.3% found (docs/results/epfl-cv); min_score by the "
                  "epfl-cv folds and empty mosaics of photographs "
                  "(benchmarks/default_thresholds.py, docs/results/default_thresholds.md)",
-        params={"min_score": 0.106, "edges": EdgeOptions(max_train_features=150),
+        params={"min_score": 0.109, "edges": EdgeOptions(max_train_features=150),
                 "kernel": KernelOptions(position_sigma=6.0, viewpoint_bandwidth_deg=5.0),
                 "search": _EPFL_SEARCH,
                 # The appearance step regresses the box and reads the viewpoint itself.

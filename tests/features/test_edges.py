@@ -1,7 +1,9 @@
+import cv2
 import numpy as np
 import pytest
 
 from posevote.features import box_mask, detect_edges, normalize_features
+from posevote.features.edges import EdgeOptions, extract_edges, frame_budget
 
 
 def square(size=64, lo=16, hi=48):
@@ -68,3 +70,18 @@ def test_a_mask_keeps_the_whole_images_edges_inside_it():
     # The orientations, smoothed only around the kept points, are the whole image's.
     np.testing.assert_array_equal(part.theta, whole.theta[inside])
     assert len(detect_edges(img, mask=np.zeros(img.shape, bool))) == 0
+
+
+def test_a_larger_test_frame_keeps_the_spacing_of_a_640_by_480_one():
+    options = EdgeOptions(max_test_features=100)
+    assert frame_budget(options, (480, 640)) == 100
+    assert frame_budget(options, (250, 376)) == 100      # never fewer than the budget
+    assert frame_budget(options, (720, 1280)) == 300
+    assert frame_budget(EdgeOptions(max_test_features=None), (720, 1280)) is None
+    # The same texture at both sizes: the points are as dense in the larger frame.
+    rng = np.random.default_rng(0)
+    texture = cv2.resize(rng.random((60, 80)), (1280, 960), interpolation=cv2.INTER_NEAREST)
+    small = extract_edges(texture[:480, :640], options, training=False)
+    large = extract_edges(texture, options, training=False)
+    assert 90 <= len(small) <= 100 and 360 <= len(large) <= 400
+    assert len(extract_edges(texture, options, training=True)) <= 300

@@ -38,7 +38,8 @@ class EdgeOptions(Options):
     max_train_features : int, default 300
         Feature budget per training view.
     max_test_features : int or None, default 2500
-        Feature budget per test image (None: the spacing alone).
+        Feature budget per 640 x 480 pixels of test image, never fewer per image
+        (:func:`frame_budget`; None: the spacing alone).
     """
 
     sigma: float = 1.0
@@ -194,11 +195,29 @@ def detect_edges(
     return EdgeFeatures(xy=xy, theta=theta)
 
 
+#: The frame area (pixels) that ``max_test_features`` is the budget of: a 640 x 480 frame's.
+BUDGET_AREA = 640 * 480
+
+
+def frame_budget(options: EdgeOptions, shape: tuple[int, ...]) -> int | None:
+    """The feature budget of a test image of ``shape`` (H, W): ``max_test_features`` per
+    :data:`BUDGET_AREA` of it, never fewer than ``max_test_features``.
+
+    A larger frame keeps the points' spacing of a 640 x 480 one, and with it what a score
+    means: a budget fixed per image thinned a larger frame's points, and lowered its
+    scores, the more the larger it was (docs/history/TRUST.md).
+    """
+    budget = options.max_test_features
+    if budget is None:
+        return None
+    return max(budget, int(round(budget * shape[0] * shape[1] / BUDGET_AREA)))
+
+
 def extract_edges(image: NDArray, options: EdgeOptions, *, training: bool,
                   mask: NDArray[np.bool_] | None = None) -> EdgeFeatures:
     """:func:`detect_edges` with ``options``, at the training or the test feature budget."""
     low, high = options.thresholds
-    budget = options.max_train_features if training else options.max_test_features
+    budget = options.max_train_features if training else frame_budget(options, image.shape[:2])
     return detect_edges(image, sigma=options.sigma, low_threshold=low, high_threshold=high,
                         spacing=options.spacing, max_points=budget, mask=mask)
 
