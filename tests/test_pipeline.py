@@ -122,3 +122,74 @@ def test_settings_are_checked():
                           ({"morph_views": "yes"}, ValueError), ({"prune": "hard"}, ValueError)):
         with pytest.raises(error):
             Settings.of({**base, **change})
+
+
+# --- image levels -------------------------------------------------------------
+
+
+def test_an_estimate_at_a_level_comes_back_in_the_images_pixels():
+    from posevote.results import Hypothesis, PoseEstimate
+
+    h = Hypothesis(azimuth=0.1, elevation=0.0, inplane=0.0, scale=1.0, position=(49.5, 9.5),
+                   box=(39.5, -0.5, 20.0, 20.0), score=0.3, refined=True)
+    back = pipeline.from_level(PoseEstimate(found=True, best=h, modes=(h,), top_score=0.3), 0.5)
+    assert back.best.position == (99.5, 19.5) and back.best.scale == 2.0
+    assert back.best.box == (79.5, -0.5, 40.0, 40.0) and back.modes == (back.best,)
+    assert pipeline.from_level(PoseEstimate(found=False, best=None), 0.5).best is None
+
+
+def test_a_levels_camera_sees_a_point_where_the_resized_image_has_it():
+    from posevote.camera import Camera
+
+    camera = Camera(fx=600.0, fy=610.0, cx=319.5, cy=239.5)
+    point = np.array([0.05, -0.02, 0.8])
+    u, v = camera.project(point)
+    small = pipeline.level_camera(camera, 0.5)
+    assert np.allclose(small.project(point), [(u + 0.5) * 0.5 - 0.5, (v + 0.5) * 0.5 - 0.5])
+    assert pipeline.level_camera(None, 0.5) is None and pipeline.level_camera(camera, 1.0) is camera
+
+
+def test_a_level_gets_its_share_of_the_frames_test_budget():
+    from posevote.features.edges import EdgeOptions
+
+    edges = EdgeOptions(max_test_features=2500)
+    assert pipeline.level_edges(edges, (720, 1280), 0.5).max_test_features == 1875
+    assert pipeline.level_edges(edges, (480, 640), 0.5).max_test_features == 625
+    assert pipeline.level_edges(edges, (480, 640), 1.0) is edges
+    none = EdgeOptions(max_test_features=None)
+    assert pipeline.level_edges(none, (480, 640), 0.5) is none
+
+
+def test_a_halved_level_finds_an_object_twice_the_scales_searched():
+    import cv2
+
+    from posevote.data import toy_views
+
+    images, poses, boxes = toy_views(range(0, 360, 30))
+    est = PoseEstimator(min_score=0.0).fit(images, poses, boxes=boxes)
+    view = toy_views([60])[0][0]
+    canvas = np.zeros((480, 640))
+    canvas[30:286, 40:296] = cv2.resize(view, (256, 256), interpolation=cv2.INTER_LINEAR)
+    alone = est.estimate(canvas)
+    est.set_params(search__image_levels=(1.0, 0.5))
+    both = est.estimate(canvas)
+    assert both.top_score > alone.top_score
+    assert both.best.scale == pytest.approx(2.0, rel=0.1)
+    x, y, w, h = both.best.box
+    assert abs(x + w / 2 - (40 + 2 * (boxes[2][0] + boxes[2][2] / 2))) < 12
+    assert abs(np.degrees(both.best.azimuth) - 60) < 10
+    # A crop under 640 x 480 is taken to be framed around its object: searched as given.
+    crop = canvas[:320, :320]
+    assert pipeline.image_levels(est._settings(), crop.shape) == (1.0,)
+    est.set_params(search__image_levels=(1.0,))
+    assert est.estimate(crop).top_score == est.set_params(
+        search__image_levels=(1.0, 0.5)).estimate(crop).top_score
+
+
+def test_image_levels_are_checked():
+    from posevote.inference.setup import SearchOptions
+
+    assert SearchOptions(image_levels=[0.5, 1.0]).image_levels == (1.0, 0.5)
+    for bad in ((), (1.0, 1.0), (0.05,), (1.5,), (1.0, 0.8, 0.6, 0.4, 0.2), "1", (float("nan"),)):
+        with pytest.raises(ValueError, match="image_levels"):
+            SearchOptions(image_levels=bad)

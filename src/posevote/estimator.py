@@ -200,14 +200,17 @@ class PoseEstimator(GroupedParams):
         """The search setup of the fitted model with the current parameters."""
         return pipeline.search_setup(self._settings(), self._trained())
 
+    def _image(self, image: ImageLike, channels: str, camera: Camera | None) -> NDArray:
+        img = load_image(image, channels=channels)
+        if isinstance(camera, Camera):
+            img = camera.undistort(img)   # the poses are the undistorted camera's
+        return img
+
     def _begin(self, image: ImageLike, channels: str, names: Sequence[str] | None = None,
                **kw: Any) -> tuple[pipeline.EstimateState, list[pipeline.Step]]:
         trained, settings = self._trained(), self._settings()
         steps = pipeline.active_steps(settings, names)
-        img = load_image(image, channels=channels)
-        camera = kw.get("camera")
-        if isinstance(camera, Camera):
-            img = camera.undistort(img)   # the poses are the undistorted camera's
+        img = self._image(image, channels, kw.get("camera"))
         return pipeline.begin(settings, trained, img, extract_edges(img, self.edges, training=False),
                               steps=steps, **kw), steps
 
@@ -248,7 +251,11 @@ class PoseEstimator(GroupedParams):
         (128, 3, False)
         """
         start = time.perf_counter()
-        return pipeline.result(pipeline.run(*self._begin(image, channels, camera=camera)), start)
+        settings = self._settings()
+        return pipeline.estimate_levels(settings, self._trained(),
+                                        self._image(image, channels, camera), self.edges,
+                                        pipeline.active_steps(settings, None), camera=camera,
+                                        start=start)
 
     def estimate_objects(self, image: ImageLike, max_objects: int, *, channels: str = "rgb",
                          camera: Camera | None = None) -> list[PoseEstimate]:
@@ -263,8 +270,11 @@ class PoseEstimator(GroupedParams):
         """
         start = time.perf_counter()
         pipeline.check_max_objects(max_objects)
-        return pipeline.estimate_objects(*self._begin(image, channels, camera=camera),
-                                         max_objects, start=start)
+        settings = self._settings()
+        return pipeline.objects_at_levels(settings, self._trained(),
+                                          self._image(image, channels, camera), self.edges,
+                                          pipeline.active_steps(settings, None), max_objects,
+                                          camera=camera, start=start)
 
     def save(self, path: str | Path) -> None:
         """Write the fitted model to a file (atomically); see :mod:`posevote.model.modelfile`.

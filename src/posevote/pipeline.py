@@ -50,6 +50,7 @@ from dataclasses import dataclass, field, fields, replace
 from functools import partial
 from typing import Any, Generic, TypeVar
 
+import cv2
 import numpy as np
 from numpy.typing import NDArray
 
@@ -59,7 +60,14 @@ from posevote.appearance.model import AppearanceCollector
 from posevote.appearance.refine import appearance_refine, front_back_share
 from posevote.appearance.verify import verify
 from posevote.camera import Camera, place_all
-from posevote.features.edges import EdgeFeatures, EdgeOptions, without_box
+from posevote.features.edges import (
+    BUDGET_AREA,
+    EdgeFeatures,
+    EdgeOptions,
+    extract_edges,
+    frame_budget,
+    without_box,
+)
 from posevote.geometry import box_iou, rotate_points
 from posevote.inference.coverage import rerank_by_coverage
 from posevote.inference.probes import ProbeSet
@@ -642,3 +650,110 @@ def estimate_objects(state: EstimateState, steps: Sequence[Step], max_objects: i
             found.append(estimate)
         features = without_box(features, estimate.best.box, grow=OBJECT_MARGIN)
     return found
+
+
+# --- image levels: coarse scales first ---------------------------------------
+
+
+def image_levels(settings: Settings, shape: tuple[int, ...]) -> tuple[float, ...]:
+    """The levels searched in an image of ``shape``: ``SearchOptions.image_levels``, the
+    reduced ones only in a frame of at least :data:`BUDGET_AREA` (a smaller crop is taken
+    to be framed around its object: halved, it offered larger false matches)."""
+    levels = settings.search.image_levels
+    if shape[0] * shape[1] >= BUDGET_AREA:
+        return levels
+    return tuple(level for level in levels if level == 1.0) or (1.0,)
+
+
+def level_image(image: NDArray[np.float64], level: float) -> NDArray[np.float64]:
+    """The image at ``level`` of its size (area-averaged; itself at 1)."""
+    if level == 1.0:
+        return image
+    h, w = image.shape[:2]
+    size = (max(1, int(round(w * level))), max(1, int(round(h * level))))
+    return np.asarray(cv2.resize(np.asarray(image, dtype=np.float32), size,
+                                 interpolation=cv2.INTER_AREA), dtype=np.float64)
+
+
+def level_camera(camera: Camera | None, level: float) -> Camera | None:
+    """The camera of an image resized by ``level`` (pixel centres kept; no distortion: the
+    image was undistorted before)."""
+    if camera is None or level == 1.0:
+        return camera
+    return Camera(fx=camera.fx * level, fy=camera.fy * level,
+                  cx=(camera.cx + 0.5) * level - 0.5, cy=(camera.cy + 0.5) * level - 0.5)
+
+
+def level_edges(edges: EdgeOptions, shape: tuple[int, ...], level: float) -> EdgeOptions:
+    """The edge options at ``level``: the image's test budget times the level's area, so that
+    the points are as many per object as at full size and the scores of the levels compare."""
+    if level == 1.0 or edges.max_test_features is None:
+        return edges
+    budget = frame_budget(edges, shape)
+    assert budget is not None
+    return replace(edges, max_test_features=max(1, int(round(budget * level * level))))
+
+
+def from_level(estimate: PoseEstimate, level: float) -> PoseEstimate:
+    """An estimate made at ``level`` of the image's size, in the image's pixels and scale
+    (the camera-frame pose is the same: the level's camera was the image's, scaled)."""
+    if level == 1.0:
+        return estimate
+
+    def back(h: Hypothesis) -> Hypothesis:
+        u, v = ((c + 0.5) / level - 0.5 for c in h.position)
+        x, y, w, bh = h.box
+        return replace(h, position=(u, v), scale=h.scale / level,
+                       box=((x + 0.5) / level - 0.5, (y + 0.5) / level - 0.5, w / level,
+                            bh / level))
+
+    modes = tuple(back(h) for h in estimate.modes)
+    best = None if estimate.best is None else back(estimate.best)
+    return replace(estimate, best=best, modes=modes)
+
+
+def level_state(settings: Settings, trained: TrainedModel, image: NDArray[np.float64],
+                edges: EdgeOptions, steps: Sequence[Step], level: float, *,
+                camera: Camera | None = None) -> EstimateState:
+    """The state before the first of ``steps`` on the image at ``level`` of its size."""
+    scaled = level_image(image, level)
+    features = extract_edges(scaled, level_edges(edges, image.shape, level), training=False)
+    return begin(settings, trained, scaled, features, steps=steps,
+                 camera=level_camera(camera, level))
+
+
+def estimate_levels(settings: Settings, trained: TrainedModel, image: NDArray[np.float64],
+                    edges: EdgeOptions, steps: Sequence[Step], *, camera: Camera | None = None,
+                    start: float) -> PoseEstimate:
+    """The estimate of the level (:func:`image_levels`) whose best mode scores highest, in
+    the image's pixels; its time counts from ``start``."""
+    kept: PoseEstimate | None = None
+    for level in image_levels(settings, image.shape):
+        state = level_state(settings, trained, image, edges, steps, level, camera=camera)
+        estimate = from_level(result(run(state, steps), start), level)
+        if kept is None or estimate.top_score > kept.top_score:
+            kept = estimate
+    assert kept is not None
+    return replace(kept, seconds=time.perf_counter() - start)
+
+
+def objects_at_levels(settings: Settings, trained: TrainedModel, image: NDArray[np.float64],
+                      edges: EdgeOptions, steps: Sequence[Step], max_objects: int, *,
+                      camera: Camera | None = None, start: float) -> list[PoseEstimate]:
+    """:func:`estimate_objects` at each level, merged: best score first, a box overlapping
+    one kept (IoU over :data:`OBJECT_OVERLAP`) dropped, at most ``max_objects``."""
+    levels = image_levels(settings, image.shape)
+    found: list[PoseEstimate] = []
+    for level in levels:
+        state = level_state(settings, trained, image, edges, steps, level, camera=camera)
+        found += [from_level(e, level)
+                  for e in estimate_objects(state, steps, max_objects, start=start)]
+    if len(levels) == 1:
+        return found
+    kept: list[PoseEstimate] = []
+    for estimate in sorted(found, key=lambda e: -e.best.score if e.best else 0.0):
+        assert estimate.best is not None
+        if all(box_iou(estimate.best.box, k.best.box) <= OBJECT_OVERLAP
+               for k in kept if k.best):
+            kept.append(estimate)
+    return kept[:max_objects]

@@ -81,8 +81,8 @@ PRESETS: dict[str, Preset] = {p.name: p for p in (
                 "search": SearchOptions(calibration=(0.918, 2.056, 2.760))}),
     Preset(
         name="cluttered",
-        description="one object anywhere in clutter, tilted by up to 30 deg, 0.7-1.3 times "
-                    "the training size, partly occluded",
+        description="one object anywhere in clutter, tilted by up to 30 deg, 0.7-2.6 times "
+                    "the training size (the image halved for the larger), partly occluded",
         chosen_on="COIL-100 training views pasted on clutter (self-test and cross-validation "
                   "on the training views)",
         script="benchmarks/coil_instance.py --selftest --clutter / --cv --clutter",
@@ -97,7 +97,8 @@ PRESETS: dict[str, Preset] = {p.name: p for p in (
                 "search": SearchOptions(inplane_range_deg=(-30.0, 30.0), inplane_step_deg=5.0,
                                         scale_range=(0.7, 1.3), scale_steps=7,
                                         object_kernel=True, chance_correction=True,
-                                        density_cap=0.5, calibration=(0.630, 6.323, 15.304)),
+                                        density_cap=0.5, calibration=(0.869, 5.207, 12.617),
+                                        image_levels=(1.0, 0.5)),
                 "refine": RefineOptions(rescale=False, local="profile", share_scale=True),
                 "templates": TemplateOptions()}),
     Preset(

@@ -46,7 +46,9 @@ def test_a_model_of_the_captured_folder_poses_as_one_of_the_truth(small):
     _, s = small
     captured, true = (np.array(s["errors_deg"][k]) for k in ("captured", "true"))
     assert len(captured) == len(true) == 6
-    assert np.median(captured) <= 1.5 * np.median(true) + 5.0
+    # Six tests are few: benchmarks/capture_check.py measures this over 144; here the chain
+    # runs end to end and the captured model is not far worse on average.
+    assert np.mean(captured) <= 1.5 * np.mean(true) + 5.0
 
 
 def test_the_board_in_the_render_is_where_capture_puts_it():

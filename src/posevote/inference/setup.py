@@ -93,6 +93,13 @@ class SearchOptions(Options):
         (:func:`posevote.refinement.probability.calibrated`); each preset's
         is fitted on its development folds
         (``benchmarks/calibrate_probability.py``). ``(1, 0, 0)``: the share.
+    image_levels : tuple of float, default (1.0,)
+        The image is searched at each of these sizes (1: as given; 0.5: halved,
+        with a quarter of the test features, where an object twice the size
+        ``scale_range`` covers looks as one it covers), and the level whose
+        best mode scores highest is kept, mapped back to the image
+        (:func:`posevote.pipeline.estimate_levels`): coarse scales first. A
+        frame under 640 x 480 pixels is searched as given only.
     """
 
     viewpoint_step_deg: float | None = None
@@ -107,6 +114,7 @@ class SearchOptions(Options):
     max_search_features: int | None = None
     rerank: str | None = None
     calibration: tuple[float, float, float] = (1.0, 0.0, 0.0)
+    image_levels: tuple[float, ...] = (1.0,)
 
     def __post_init__(self) -> None:
         self._number("viewpoint_step_deg", low=0.1, high=180.0, optional=True)
@@ -130,11 +138,26 @@ class SearchOptions(Options):
         self._number("max_search_features", low=1, high=10_000_000, integer=True,
                      optional=True)
         self._calibration()
+        self._image_levels()
         n_inplane = len(self.grid()[0])
         if n_inplane > MAX_GRID_STEPS:
             self._fail("inplane_step_deg", f"a step giving at most {MAX_GRID_STEPS} in-plane "
                        f"angles over inplane_range_deg (this gives {n_inplane})",
                        self.inplane_step_deg)
+
+    def _image_levels(self) -> None:
+        expected = "1 to 4 distinct sizes from 0.1 to 1"
+        value = self.image_levels
+        if isinstance(value, (str, bytes, dict)):
+            self._fail("image_levels", expected, value)
+        try:
+            levels = tuple(sorted({float(v) for v in value}, reverse=True))
+        except (TypeError, ValueError):
+            self._fail("image_levels", expected, value)
+        if not (1 <= len(levels) == len(tuple(value)) <= 4
+                and all(0.1 <= v <= 1.0 for v in levels)):
+            self._fail("image_levels", expected, value)
+        object.__setattr__(self, "image_levels", levels)
 
     def _calibration(self) -> None:
         expected = "(a, b, c): three finite numbers, 0 <= a <= 100, |b|, |c| <= 100"
