@@ -31,6 +31,7 @@ import json
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
+from functools import cache
 from pathlib import Path
 from typing import Any
 
@@ -280,14 +281,23 @@ def object_box(R_cam_board: NDArray[np.float64], t_cam_board: NDArray[np.float64
     return float(x0), float(y0), float(x1 - x0), float(y1 - y0)
 
 
+@cache
+def squares_image(spec: BoardSpec, ppm: float) -> NDArray[np.float32]:
+    """The board's squares at ``ppm`` pixels per metre, grey levels in ``[0, 1]`` (made once
+    per board: every photograph's view warps it)."""
+    size = (int(spec.size_m[0] * ppm), int(spec.size_m[1] * ppm))
+    image = spec.board().generateImage(size, marginSize=0).astype(np.float32) / 255.0
+    image.setflags(write=False)
+    return image
+
+
 def board_view(spec: BoardSpec, R_cam_board: NDArray[np.float64],
                t_cam_board: NDArray[np.float64], camera: Camera, size: tuple[int, int]
                ) -> NDArray[np.float64]:
     """The printed squares as the undistorted camera sees them: grey levels in ``[0, 1]``,
     NaN off the squares; ``size`` is the photograph's ``(width, height)``."""
     ppm = 2000.0   # board pixels per metre: 2 mm squares' detail at 0.5 mm
-    squares = spec.board().generateImage((int(spec.size_m[0] * ppm), int(spec.size_m[1] * ppm)),
-                                         marginSize=0).astype(np.float32) / 255.0
+    squares = squares_image(spec, ppm)
     H = camera.K @ np.column_stack([R_cam_board[:, 0], R_cam_board[:, 1], t_cam_board]) \
         @ np.diag([1.0 / ppm, 1.0 / ppm, 1.0])
     seen = cv2.warpPerspective(squares, H, size, flags=cv2.INTER_AREA, borderValue=np.nan)

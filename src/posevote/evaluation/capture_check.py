@@ -32,7 +32,7 @@ from numpy.typing import NDArray
 
 from posevote._io import atomic_write_text
 from posevote.camera import Camera
-from posevote.capture import R_BOARD_OBJ, BoardSpec, Footprint, capture
+from posevote.capture import R_BOARD_OBJ, BoardSpec, Footprint, capture, squares_image
 from posevote.geometry import box_iou, rotation_angle, rotation_from_pose
 
 #: The photographs' size and the lens they are taken through (a phone-like 640 x 480 with
@@ -139,12 +139,10 @@ def _board_layer(R: NDArray[np.float64], t: NDArray[np.float64]
     """The printed board's grey levels and coverage in the ideal image (drawn at 4x and
     averaged down, as a sensor integrates its pixels)."""
     ppm = 4000.0
-    board = BOARD.board().generateImage((int(BOARD.size_m[0] * ppm), int(BOARD.size_m[1] * ppm)),
-                                        marginSize=0)
     # A white paper margin of 1 cm around the squares, as `posevote board` prints.
     margin = int(0.01 * ppm)
-    paper = cv2.copyMakeBorder(board, margin, margin, margin, margin, cv2.BORDER_CONSTANT,
-                               value=255)
+    paper = cv2.copyMakeBorder(squares_image(BOARD, ppm) * 255.0, margin, margin, margin, margin,
+                               cv2.BORDER_CONSTANT, value=255)
     S = np.array([[1 / ppm, 0.0, -margin / ppm], [0.0, 1 / ppm, -margin / ppm], [0.0, 0.0, 1.0]])
     up = np.array([[4.0, 0.0, 1.5], [0.0, 4.0, 1.5], [0.0, 0.0, 1.0]])
     H = up @ LENS.K @ np.column_stack([R[:, 0], R[:, 1], t]) @ S
