@@ -304,7 +304,6 @@ def run_capture_check(setup: CaptureSetup, out: str | Path, *,
     ``out/captured``, the truth's in ``out/true``, the test images and their truth in
     ``out/tests``. Returns the summary."""
     from posevote.data import read_mask, read_poses_csv
-    from posevote.geometry import rotation_from_pose as rot
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -321,7 +320,7 @@ def run_capture_check(setup: CaptureSetup, out: str | Path, *,
     for path, pose, b, m, d in zip(ts.images, ts.poses, ts.boxes, ts.masks, ts.distances,
                                    strict=True):
         item = truth[path.name]
-        rotation.append(float(np.degrees(rotation_angle(rot(*pose), item["R"]))))
+        rotation.append(float(np.degrees(rotation_angle(rotation_from_pose(*pose), item["R"]))))
         point = item["R"] @ np.array([0.0, 0.0, foot.height_m / 2]) + item["t"]
         distance.append(100 * abs(d - point[2]) / point[2])
         box.append(box_iou(b, item["box"]))

@@ -8,7 +8,8 @@ protocol (nothing to download).
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -184,10 +185,36 @@ def render_posed(poses: Sequence[tuple[NDArray[np.float64], NDArray[np.float64]]
     mesh, base_euler
         As :func:`render_turntable`.
     """
+    fx, fy, cx, cy = intrinsics
+    with _standing(mesh, base_euler) as (pybullet, client, body, _):
+        proj = gl_projection(fx, fy, cx, cy, size)
+        out = []
+        for R, t in poses:
+            _, _, rgba, _, seg = pybullet.getCameraImage(
+                size[0], size[1], gl_view(R, t), proj, renderer=pybullet.ER_TINY_RENDERER,
+                physicsClientId=client)
+            rgb = np.reshape(np.asarray(rgba, dtype=np.uint8), (size[1], size[0], 4))[..., :3]
+            mask = (np.reshape(np.asarray(seg), (size[1], size[0])) & 0xFFFFFF) == body
+            out.append((np.ascontiguousarray(rgb), mask))
+        return out
+
+
+def mesh_size(mesh: str = "duck_vhacd.urdf",
+              base_euler: tuple[float, float, float] = (np.pi / 2, 0.0, 0.0)
+              ) -> NDArray[np.float64]:
+    """The extent (x, y, z; metres) of a mesh of ``pybullet_data`` in its rest orientation."""
+    with _standing(mesh, base_euler) as (_, _, _, extent):
+        return extent
+
+
+@contextmanager
+def _standing(mesh: str, base_euler: tuple[float, float, float]
+              ) -> Iterator[tuple[Any, int, int, NDArray[np.float64]]]:
+    """pybullet, a client, the mesh in its rest orientation standing on ``z = 0`` (its visual
+    bounding box's bottom centre at the origin) and that box's extent; disconnected after."""
     import pybullet
     import pybullet_data
 
-    fx, fy, cx, cy = intrinsics
     client = pybullet.connect(pybullet.DIRECT)
     try:
         pybullet.setAdditionalSearchPath(pybullet_data.getDataPath(), physicsClientId=client)
@@ -199,35 +226,7 @@ def render_posed(poses: Sequence[tuple[NDArray[np.float64], NDArray[np.float64]]
         position, _ = pybullet.getBasePositionAndOrientation(body, physicsClientId=client)
         pybullet.resetBasePositionAndOrientation(body, list(np.asarray(position) - base), rest,
                                                  physicsClientId=client)
-        proj = gl_projection(fx, fy, cx, cy, size)
-        out = []
-        for R, t in poses:
-            _, _, rgba, _, seg = pybullet.getCameraImage(
-                size[0], size[1], gl_view(R, t), proj, renderer=pybullet.ER_TINY_RENDERER,
-                physicsClientId=client)
-            rgb = np.reshape(np.asarray(rgba, dtype=np.uint8), (size[1], size[0], 4))[..., :3]
-            mask = (np.reshape(np.asarray(seg), (size[1], size[0])) & 0xFFFFFF) == body
-            out.append((np.ascontiguousarray(rgb), mask))
-        return out
-    finally:
-        pybullet.disconnect(client)
-
-
-def mesh_size(mesh: str = "duck_vhacd.urdf",
-              base_euler: tuple[float, float, float] = (np.pi / 2, 0.0, 0.0)
-              ) -> NDArray[np.float64]:
-    """The extent (x, y, z; metres) of a mesh of ``pybullet_data`` in its rest orientation."""
-    import pybullet
-    import pybullet_data
-
-    client = pybullet.connect(pybullet.DIRECT)
-    try:
-        pybullet.setAdditionalSearchPath(pybullet_data.getDataPath(), physicsClientId=client)
-        body = pybullet.loadURDF(mesh, useFixedBase=True,
-                                 baseOrientation=pybullet.getQuaternionFromEuler(list(base_euler)),
-                                 physicsClientId=client)
-        lo, hi = _visual_bounds(pybullet, body, client)
-        return np.asarray(hi - lo, dtype=np.float64)
+        yield pybullet, client, body, np.asarray(hi - lo, dtype=np.float64)
     finally:
         pybullet.disconnect(client)
 
