@@ -12,7 +12,8 @@ five groups of objects (every fifth object).
 empty 640x480 and 1280x720 mosaics of scikit-image's bundled photographs
 (no cars), 8 per size, looked at by each fold's model.
 
-For each fold, the threshold is the lowest score that at most
+For each fold, the threshold is the lowest detection score (a frame's
+``top_score``: the contrast where the preset measures it) that at most
 ``--false-alarms`` of the *other* folds' empty frames (both sizes together)
 exceed; it is then applied to the fold's own frames: the share of its
 objects found (score over the threshold and box IoU >= 0.5) and of its
@@ -162,7 +163,8 @@ def preset_records(preset: str, data: str, runs: Path, jobs: int,
 
 def report(results: dict[str, tuple[float, list[dict[str, float]]]], false_alarms: float) -> str:
     """The chosen thresholds and their held-out folds, as Markdown."""
-    lines = [f"Threshold: the lowest score that at most {100 * false_alarms:g}% of the "
+    lines = [f"Threshold: the lowest detection score (`cluttered`: the contrast; the others: "
+             f"the score) that at most {100 * false_alarms:g}% of the "
              "other folds' empty frames exceed (both sizes together); found: score over "
              "it and box IoU >= 0.5. Held-out figures per fold (instance presets: 8 "
              "objects, 32 object frames and 16 empty frames; category: 2 cars of epfl-cv "

@@ -80,15 +80,15 @@ def run_object(obj: int, objects: list[int], data: str, clutter: bool, seed: int
                  "background": []}
     for img, box, pose in zip(right.load_images(), right.boxes, right.poses, strict=True):
         r = est.estimate(scene(img, box))
-        out["right"].append(r.best.score if r.best is not None else 0.0)
+        out["right"].append(r.best.detection_score if r.best is not None else 0.0)
         out["right_error_deg"].append(
             float(np.degrees(angular_error(r.best.azimuth, pose[0]))) if r.best else 180.0)
     for img, box in zip(wrong.load_images(), wrong.boxes, strict=True):
         r = est.estimate(scene(img, box))
-        out["wrong"].append(r.best.score if r.best is not None else 0.0)
+        out["wrong"].append(r.best.detection_score if r.best is not None else 0.0)
     for img in backgrounds:
         r = est.estimate(img)
-        out["background"].append(r.best.score if r.best is not None else 0.0)
+        out["background"].append(r.best.detection_score if r.best is not None else 0.0)
     return out
 
 

@@ -29,8 +29,8 @@ def test_each_preset_runs_its_steps_in_order():
         "default": ["search", "modes", "fit", "rescale", "recognise", "outline", "reject",
                     "probabilities", "place"],
         "cluttered": ["search", "rerank by template", "modes", "fit", "local refinement",
-                      "half-turn", "share scale", "recognise", "outline", "reject",
-                      "probabilities", "place"],
+                      "half-turn", "share scale", "recognise", "outline", "contrast",
+                      "reject", "probabilities", "place"],
         "turntable": ["search", "modes", "fit", "local refinement", "recognise", "outline",
                       "reject", "probabilities", "place"],
         "category": ["search", "verify", "modes", "fit", "recognise", "appearance", "reject",
@@ -52,6 +52,7 @@ FLIPS = {
     "recognise": ({"recognition": RecognitionOptions()}, {"recognition": None}),
     "appearance": ({"appearance": AppearanceOptions(candidates=0)}, {"appearance": None}),
     "outline": ({"refine__outline": True}, {"refine__outline": False}),
+    "contrast": ({"search__contrast": True}, {"search__contrast": False}),
 }
 
 

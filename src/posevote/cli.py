@@ -411,7 +411,9 @@ def train(source: Path, output: Path, layout: str, objects: str | None, cars: st
 @click.option("--no-fitting", is_flag=True,
               help="Skip the continuous refinement: the modes are the best probes (polished "
                    "where the preset refines locally).")
-@click.option("--min-score", type=float, default=None, help="Report 'not found' below this.")
+@click.option("--min-score", type=float, default=None,
+              help="Report 'not found' when no mode's detection score (contrast where the "
+                   "preset measures it, else score) is above this.")
 @click.option("--threads", type=click.IntRange(1, 64), default=1, show_default=True,
               help="Threads probing viewpoints at once (faster on several cores; same result).")
 @click.option("--camera", "camera_file", type=click.Path(path_type=Path), default=None,
@@ -507,7 +509,12 @@ def _pose_line(b: Any) -> str:
     return (f"azimuth {b.azimuth_deg:.1f} deg  elevation {b.elevation_deg:.1f} deg  "
             f"in-plane {b.inplane_deg:.1f} deg  scale {b.scale:.3f}  "
             f"position ({b.position[0]:.1f}, {b.position[1]:.1f}) px  score {b.score:.3f}  "
-            f"p {b.probability:.2f}{'' if b.refined else '  (not refined)'}")
+            f"{_contrast(b)}p {b.probability:.2f}{'' if b.refined else '  (not refined)'}")
+
+
+def _contrast(b: Any) -> str:
+    return "" if math.isnan(b.contrast) else f"contrast {b.contrast:.2f}  "
+
 
 
 def _estimate_one(est: Any, image: Path, *, as_json: bool, overlay: Path | None,
@@ -537,11 +544,12 @@ def _estimate_one(est: Any, image: Path, *, as_json: bool, overlay: Path | None,
                        "--object-height-m, or --camera and a distance_m column)")
         for rank, m in enumerate(result.modes[1:], start=2):
             click.echo(f"  mode {rank}: azimuth {m.azimuth_deg:.1f} deg  score {m.score:.3f}  "
-                       f"p {m.probability:.2f}")
+                       f"{_contrast(m)}p {m.probability:.2f}")
         if result.ambiguous:
             click.echo("  ambiguous: the best mode is more likely wrong than right (look again)")
     elif result.top_score > 0:
-        click.echo(f"no object found (best score {result.top_score:.3f}, not above "
+        what = "contrast" if est.search.contrast else "score"
+        click.echo(f"no object found (best {what} {result.top_score:.3f}, not above "
                    f"min_score {est.min_score:g}). {NOT_FOUND_HINT}", err=True)
     else:
         click.echo("no object found (no edges to vote)", err=True)

@@ -60,7 +60,9 @@ class PoseEstimator(GroupedParams):
     max_modes : int, default 3
         Modes reported per image.
     min_score : float, default 0.0
-        Below this best score the estimate is "not found".
+        A mode whose detection score is not above this is dropped; none left: "not
+        found". The detection score is the mode's contrast where
+        ``SearchOptions.contrast`` measures it, else its score.
     n_jobs : int, default 1
         Threads probing viewpoints and reading training images (the time, not the result).
 
@@ -242,7 +244,8 @@ class PoseEstimator(GroupedParams):
         Returns
         -------
         PoseEstimate
-            ``found`` is False when the image has no edges or no mode scores over ``min_score``.
+            ``found`` is False when the image has no edges or no mode's detection score is
+            over ``min_score``.
 
         Examples
         --------

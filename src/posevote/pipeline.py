@@ -26,7 +26,10 @@ recognise             ``recognition``                 the instance, and its own 
 appearance            ``appearance``                  the box regressed, the nearest view's
                                                       viewpoint
 outline               ``refine.outline``              each mode's box from its views' outline
-reject                always (``min_score``)          the modes that score above ``min_score``
+contrast              ``search.contrast``             each mode's score over its frame's
+                                                      background spread
+reject                always (``min_score``)          the modes whose detection score is above
+                                                      ``min_score``
 probabilities         always                          each mode's probability
 place                 always                          ``R_cam_obj``, ``t_cam_obj`` (a camera)
 ====================  ==============================  ===========================================
@@ -86,8 +89,9 @@ from posevote.refinement.local import PoseWeights, local_refine, rescale_mode
 from posevote.refinement.probability import scored_viewpoints, with_probabilities
 from posevote.refinement.share import share_scale
 from posevote.results import Hypothesis, PoseEstimate
+from posevote.scoring.contrast import mode_contrast
 from posevote.scoring.maps import TestMaps
-from posevote.scoring.score import narrow_maps
+from posevote.scoring.score import narrow_maps, score_options
 from posevote.templates import TemplateOptions
 from posevote.templates.halfturn import half_turn
 from posevote.templates.match import correlation_weights, gradient_similarity, rerank_by_template
@@ -404,12 +408,22 @@ def outline(state: EstimateState) -> EstimateState:
     return state.with_hypotheses([_outlined(h, state.trained) for h in state.hypotheses])
 
 
+def contrast(state: EstimateState) -> EstimateState:
+    """Each mode's score over the spread of what its pose scores elsewhere in the frame."""
+    maps = state.narrow()
+    options = score_options(state.setup)
+    return state.with_hypotheses([
+        replace(h, contrast=mode_contrast(h, state.trained.model, maps, state.shape, **options))
+        for h in state.hypotheses])
+
+
 def reject(state: EstimateState) -> EstimateState:
-    """The modes that score above ``min_score``; the best score is kept (what a rejected
-    image scored)."""
+    """The modes whose detection score (contrast where measured) is above ``min_score``;
+    the best is kept (what a rejected image scored)."""
     hyps = state.hypotheses
-    return replace(state, top_score=max((h.score for h in hyps), default=0.0),
-                   hypotheses=tuple(h for h in hyps if h.score > state.settings.min_score))
+    return replace(state, top_score=max((h.detection_score for h in hyps), default=0.0),
+                   hypotheses=tuple(h for h in hyps
+                                    if h.detection_score > state.settings.min_score))
 
 
 def probabilities(state: EstimateState) -> EstimateState:
@@ -530,6 +544,8 @@ STEPS: tuple[Step, ...] = (
     Step(name="appearance", run=appearance, switch="appearance",
          active=lambda s: s.appearance is not None, needs=lambda s: frozenset({"appearance"})),
     Step(name="outline", run=outline, switch="refine.outline", active=lambda s: s.refine.outline),
+    Step(name="contrast", run=contrast, switch="search.contrast",
+         active=lambda s: s.search.contrast),
     Step(name="reject", run=reject, switch="always (min_score)"),
     Step(name="probabilities", run=probabilities),
     Step(name="place", run=place, when="a camera"),
@@ -725,8 +741,8 @@ def level_state(settings: Settings, trained: TrainedModel, image: NDArray[np.flo
 def estimate_levels(settings: Settings, trained: TrainedModel, image: NDArray[np.float64],
                     edges: EdgeOptions, steps: Sequence[Step], *, camera: Camera | None = None,
                     start: float) -> PoseEstimate:
-    """The estimate of the level (:func:`image_levels`) whose best mode scores highest, in
-    the image's pixels; its time counts from ``start``."""
+    """The estimate of the level (:func:`image_levels`) whose best mode's detection score
+    (``top_score``) is highest, in the image's pixels; its time counts from ``start``."""
     kept: PoseEstimate | None = None
     for level in image_levels(settings, image.shape):
         state = level_state(settings, trained, image, edges, steps, level, camera=camera)
@@ -751,7 +767,7 @@ def objects_at_levels(settings: Settings, trained: TrainedModel, image: NDArray[
     if len(levels) == 1:
         return found
     kept: list[PoseEstimate] = []
-    for estimate in sorted(found, key=lambda e: -e.best.score if e.best else 0.0):
+    for estimate in sorted(found, key=lambda e: -e.best.detection_score if e.best else 0.0):
         assert estimate.best is not None
         if all(box_iou(estimate.best.box, k.best.box) <= OBJECT_OVERLAP
                for k in kept if k.best):

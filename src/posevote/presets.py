@@ -89,16 +89,16 @@ PRESETS: dict[str, Preset] = {p.name: p for p in (
         measured="COIL instance protocol in clutter 3.79 / 8.78 deg, 77.4% of positions "
                  "within 5 px (docs/results/coil_instance_clutter.md); the template "
                  "re-ranking chosen on the development clutter CVs (docs/DEFAULTS.md); "
-                 "min_score by 5-fold cross-validation over the 40 development objects on "
-                 "the frames benchmark (benchmarks/default_thresholds.py, "
-                 "docs/results/default_thresholds.md)",
-        # The lowest score that at most 2.5% of the empty frames exceed.
-        params={"min_score": 0.0771,
+                 "min_score (on the contrast) by 5-fold cross-validation over the 40 "
+                 "development objects on the frames benchmark "
+                 "(benchmarks/default_thresholds.py, docs/results/default_thresholds.md)",
+        # The lowest contrast that at most 2.5% of the empty frames exceed.
+        params={"min_score": 5.606,
                 "search": SearchOptions(inplane_range_deg=(-30.0, 30.0), inplane_step_deg=5.0,
                                         scale_range=(0.7, 1.3), scale_steps=7,
                                         object_kernel=True, chance_correction=True,
-                                        density_cap=0.5, calibration=(0.869, 5.207, 12.617),
-                                        image_levels=(1.0, 0.5)),
+                                        density_cap=0.5, calibration=(0.735, 4.049, 10.010),
+                                        image_levels=(1.0, 0.5), contrast=True),
                 "refine": RefineOptions(rescale=False, local="profile", share_scale=True),
                 "templates": TemplateOptions()}),
     Preset(

@@ -44,6 +44,11 @@ class Hypothesis:
         calibrated by ``SearchOptions.calibration`` on its preset's
         development folds, wrong answers among them
         (:mod:`posevote.refinement.probability`); NaN when not computed.
+    contrast : float
+        ``score`` over the spread of what the same pose scores elsewhere in
+        the frame (:mod:`posevote.scoring.contrast`): how far the mode stands
+        out of its own frame's background; NaN where the preset does not
+        measure it (``SearchOptions.contrast``).
     """
 
     azimuth: float
@@ -57,6 +62,12 @@ class Hypothesis:
     R_cam_obj: tuple[tuple[float, float, float], ...] | None = None
     t_cam_obj: tuple[float, float, float] | None = None
     probability: float = float("nan")
+    contrast: float = float("nan")
+
+    @property
+    def detection_score(self) -> float:
+        """What ``min_score`` reads: ``contrast`` where measured, else ``score``."""
+        return self.score if math.isnan(self.contrast) else self.contrast
 
     @property
     def T_cam_obj(self) -> list[list[float]] | None:
@@ -93,6 +104,7 @@ class Hypothesis:
             "score": self.score,
             "refined": self.refined,
             "probability": None if math.isnan(self.probability) else self.probability,
+            **({} if math.isnan(self.contrast) else {"contrast": self.contrast}),
             **({} if self.R_cam_obj is None else {"R_cam_obj": [list(r) for r in self.R_cam_obj]}),
             **({} if self.t_cam_obj is None else {"t_cam_obj_m": list(self.t_cam_obj),
                                                   "T_cam_obj": self.T_cam_obj}),
@@ -107,7 +119,8 @@ class PoseEstimate:
     ----------
     found : bool
         False when no pose could be proposed (no edges in the image, or no
-        mode scored above the estimator's ``min_score``); then ``best`` is None.
+        mode's ``detection_score`` was above the estimator's ``min_score``);
+        then ``best`` is None.
     best : Hypothesis or None
         The highest-scoring mode.
     modes : tuple of Hypothesis
@@ -124,8 +137,8 @@ class PoseEstimate:
         Score of the best instance over that of the runner-up at the
         category estimate (NaN when instances were not scored).
     top_score : float
-        The best mode's score before ``min_score`` was applied (0 when there
-        was none): what a rejected image scored.
+        The best ``detection_score`` of the modes before ``min_score`` was
+        applied (0 when there was none): what a rejected image scored.
     viewpoint_scores : tuple of (float, float, float)
         ``(azimuth, elevation, score)`` of every probed viewpoint, radians:
         the profile the modes and their probabilities come from (where to

@@ -24,7 +24,7 @@ pytest.importorskip("pybullet")
 @pytest.fixture(scope="module")
 def small(tmp_path_factory):
     out = tmp_path_factory.mktemp("capture-check")
-    return out, run_capture_check(CaptureSetup(photos=24, tests=6), out)
+    return out, run_capture_check(CaptureSetup(photos=24, tests=12), out)
 
 
 def test_capture_from_rendered_photographs_recovers_the_camera_poses_and_masks(small):
@@ -45,9 +45,10 @@ def test_capture_from_rendered_photographs_recovers_the_camera_poses_and_masks(s
 def test_a_model_of_the_captured_folder_poses_as_one_of_the_truth(small):
     _, s = small
     captured, true = (np.array(s["errors_deg"][k]) for k in ("captured", "true"))
-    assert len(captured) == len(true) == 6
-    # Six tests are few: benchmarks/capture_check.py measures this over 144; here the chain
-    # runs end to end and the captured model is not far worse on average.
+    assert len(captured) == len(true) == 12
+    # Twelve tests are few (one half-turn moves the mean by 15 degrees; six were too few):
+    # benchmarks/capture_check.py measures this over 144; here the chain runs end to end and
+    # the captured model is not far worse on average.
     assert np.mean(captured) <= 1.5 * np.mean(true) + 5.0
 
 

@@ -8,13 +8,15 @@ within 30 degrees, 20% hidden behind a patch of another mosaic; and, in as many
 frames again, the mosaic alone, which the model of the object whose turn it is
 looks at. Every frame is estimated without a threshold, and the preset's own
 threshold is applied afterwards, so that every threshold can be read from the
-records. An object is found when its best mode scores above the threshold and
+records. An object is found when its frame's detection score (``top_score``:
+the best mode's contrast where the preset measures it, else its score) is
+above the threshold and
 its box overlaps the pasted one by IoU 0.5 or more; an empty frame is a false
-alarm when its best mode scores above it; a pose is right when it is found and
+alarm when its detection score is above it; a pose is right when it is found and
 within 30 degrees of azimuth (on the half circle for the boxes and flat bottles).
 
 Reported per frame size and over both: detection average precision (every
-frame's best mode a detection, ranked by score), recall and false alarms per
+frame's best mode a detection, ranked by detection score), recall and false alarms per
 empty frame at the threshold, the azimuth errors of the objects found, the
 calibration of the best mode's probability (expected calibration error,
 reliability diagram) and its risk-coverage curve, seconds per frame.
@@ -217,7 +219,7 @@ def frame_record(est: PoseEstimator, item: dict[str, Any]) -> dict[str, Any]:
     best = result.best
     if best is not None:
         rec.update(probability=best.probability, estimate_deg=best.azimuth_deg,
-                   box=list(best.box), scale_estimate=best.scale)
+                   box=list(best.box), scale_estimate=best.scale, pose_score=best.score)
         if truth:
             period = math.pi if item["object"] in HALF_TURN else 2.0 * math.pi
             rec["iou"] = float(box_iou(best.box, truth["truth_box"]))
@@ -310,7 +312,8 @@ def report_text(setup: FramesSetup, summary: dict[str, Any]) -> str:
             f"the object (a view between training views at {SCALE_RANGE[0]:g}-"
             f"{SCALE_RANGE[1]:g}× its training size, in-plane ±30°, 20% hidden) and "
             f"{setup.empty} without, on mosaics of EPFL cars 1-10 frames; seed {setup.seed}; "
-            f"overrides {dict(setup.params) or 'none'}. Found: score over the threshold "
+            f"overrides {dict(setup.params) or 'none'}. Found: detection score (the "
+            "contrast, where the preset measures it) over the threshold "
             f"({summary['threshold']:g}, the preset's) and box IoU ≥ 0.5; right: found and "
             f"within {RIGHT_DEG:g}° of azimuth. The probabilities (ECE, p ≥ 0.9, the most "
             "confident 85%, the plot) are those reported: a frame not found reports p 0.\n\n"

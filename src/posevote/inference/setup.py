@@ -97,9 +97,14 @@ class SearchOptions(Options):
         The image is searched at each of these sizes (1: as given; 0.5: halved,
         with a quarter of the test features, where an object twice the size
         ``scale_range`` covers looks as one it covers), and the level whose
-        best mode scores highest is kept, mapped back to the image
+        best mode's ``detection_score`` is highest is kept, mapped back to the image
         (:func:`posevote.pipeline.estimate_levels`): coarse scales first. A
         frame under 640 x 480 pixels is searched as given only.
+    contrast : bool, default False
+        Measure each mode's contrast, its score over the spread of what its
+        pose scores elsewhere in the frame (:mod:`posevote.scoring.contrast`),
+        and let ``min_score`` and the choice of image level read it instead
+        of the score: for objects that fill a small part of their frame.
     """
 
     viewpoint_step_deg: float | None = None
@@ -115,6 +120,7 @@ class SearchOptions(Options):
     rerank: str | None = None
     calibration: tuple[float, float, float] = (1.0, 0.0, 0.0)
     image_levels: tuple[float, ...] = (1.0,)
+    contrast: bool = False
 
     def __post_init__(self) -> None:
         self._number("viewpoint_step_deg", low=0.1, high=180.0, optional=True)
@@ -128,7 +134,7 @@ class SearchOptions(Options):
             self._fail("scale_range", f"(low, high) with {SCALE_LIMITS[0]:g} <= low <= high "
                        f"<= {SCALE_LIMITS[1]:g}", self.scale_range)
         self._number("scale_steps", low=1, high=MAX_GRID_STEPS, integer=True)
-        for name in ("object_kernel", "chance_correction"):
+        for name in ("object_kernel", "chance_correction", "contrast"):
             self._flag(name)
         if self.rerank not in RERANKINGS:
             hint = " (the template re-ranking is TemplateOptions.rerank)" \
