@@ -13,12 +13,22 @@ def test_demo_settings_are_validated_before_anything_is_written(tmp_path):
 
 def test_demo_summary(tmp_path):
     pytest.importorskip("pybullet")
+    import csv
+
     from posevote.demo import run_demo
 
     summary = run_demo(tmp_path, n_test=2, seed=1, overrides={"search__scale_steps": 3})
     assert summary["n"] == 2
     assert 0.0 <= summary["position_within_5px"] <= 100.0
     assert (tmp_path / "results.csv").read_text().count("\n") == 3
+    # Every image is estimated; "found" is the preset's threshold on its detection score.
+    rows = list(csv.DictReader((tmp_path / "results.csv").read_text().splitlines()))
+    assert summary["threshold"] == 5.606
+    assert [r["found"] == "True" for r in rows] == [float(r["detection_score"]) > 5.606
+                                                   for r in rows]
+    assert all(r["azimuth_est_deg"] != "nan" for r in rows)
+    assert summary["found"] == sum(r["found"] == "True" for r in rows)
+    assert 0 <= summary["found_right"] <= summary["found"]
 
 
 def test_demo_refuses_an_unknown_mesh(tmp_path):

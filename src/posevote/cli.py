@@ -920,6 +920,9 @@ def demo(output: Path, n_test: int, seed: int) -> None:
                f"median {summary['median']:.1f} deg, mean {summary['mean']:.1f} deg, "
                f"{summary['under_22_5']:.0f}% under 22.5 deg; position within 5 px: "
                f"{summary['position_within_5px']:.0f}%")
+    click.echo(f"found at the preset's threshold (detection score over "
+               f"{summary['threshold']:g}): {summary['found']} of {summary['n']}, "
+               f"{summary['found_right']} of them within 22.5 deg")
     click.echo(f"overlays and results.csv in {output}/")
 
 
