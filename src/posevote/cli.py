@@ -428,9 +428,11 @@ def estimate(model: Path, images: tuple[Path, ...], as_json: bool, as_csv: bool,
     """Estimate the pose of the object in each of IMAGES (files, folders, glob patterns).
 
     Each pose comes with its score (the weighted share of the model's features
-    the image explains) and p, the chance that it is right (within 30 degrees,
-    the box on the object), calibrated for the preset on development data
-    with flips, other objects and empty frames in it.
+    the image explains), with the cluttered preset its contrast (the score over
+    the spread of what the same pose scores elsewhere in the frame: what decides
+    "found" there), and p, the chance that it is right (within 30 degrees, the
+    box on the object), calibrated for the preset on development data with
+    flips, other objects and empty frames in it.
 
     Exit code 3 when no image holds an object; 1 when an image could not be
     read (the others are still estimated).
