@@ -410,6 +410,8 @@ def outline(state: EstimateState) -> EstimateState:
 
 def contrast(state: EstimateState) -> EstimateState:
     """Each mode's score over the spread of what its pose scores elsewhere in the frame."""
+    if not state.hypotheses:
+        return state
     maps = state.narrow()
     options = score_options(state.setup)
     return state.with_hypotheses([
