@@ -115,3 +115,12 @@ def test_contrast_option_is_a_flag():
     with pytest.raises(ValueError, match="contrast"):
         SearchOptions(contrast="yes")
     assert SearchOptions(contrast=True).contrast is True
+
+
+def test_a_frame_without_edges_has_nothing_to_measure(toy_estimator):
+    est = toy_estimator.set_params(search__contrast=True)
+    try:
+        blank = est.estimate(np.zeros((480, 640)))
+        assert not blank.found and blank.top_score == 0.0
+    finally:
+        est.set_params(search__contrast=False)
