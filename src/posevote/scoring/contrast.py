@@ -16,6 +16,7 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
+from posevote.geometry import box_iou
 from posevote.model.density import PoseModel
 from posevote.results import Hypothesis
 from posevote.scoring.maps import TestMaps
@@ -57,13 +58,11 @@ def placements(hypothesis: Hypothesis, shape: tuple[int, int]
     u, v = np.meshgrid(np.arange(step / 2.0, w, step), np.arange(step / 2.0, h, step))
     u, v = u.ravel(), v.ravel()
     u0, v0 = hypothesis.position
-    # The placed box is the mode's translated: its overlap follows from the shift alone.
-    ox = np.clip(bw - np.abs(u - u0), 0.0, None)
-    oy = np.clip(bh - np.abs(v - v0), 0.0, None)
-    area = max(bw * bh, 1e-12)
-    iou = ox * oy / (2.0 * area - ox * oy)
-    keep = iou <= MAX_OVERLAP
-    if keep.sum() < MIN_PLACEMENTS:
+    x, y = hypothesis.box[:2]
+    placed = np.stack([x + u - u0, y + v - v0, np.full_like(u, bw), np.full_like(u, bh)], axis=1)
+    iou = np.asarray(box_iou(placed, np.asarray(hypothesis.box, dtype=np.float64)))
+    keep = np.flatnonzero(iou <= MAX_OVERLAP)
+    if len(keep) < MIN_PLACEMENTS:
         keep = np.argsort(iou, kind="stable")[:MIN_PLACEMENTS]
     return u[keep], v[keep]
 
