@@ -160,6 +160,8 @@ def run_split(obj: int, data: str, train_az: list[int], test_az: list[int], clut
         est = model_for(row)
         est.set_params(**{k: v for k, v in row_params(row, preset).items()
                           if k not in params and k not in FIT_SETTINGS})
+        # A --param field of a group the row sets (refine.keypoints=True) wins over the row's.
+        est.set_params(**{k: v for k, v in params.items() if "__" in k})
         errs, secs, pos_err, scale_err, inplane_err, prob = [], [], [], [], [], []
         for k, (img, pose) in enumerate(zip(images, test.poses, strict=True)):
             r = est.estimate(img)

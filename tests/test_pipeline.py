@@ -3,6 +3,7 @@ what training is asked for, and the state the steps hand on."""
 
 from __future__ import annotations
 
+import copy
 from dataclasses import replace
 
 import numpy as np
@@ -26,11 +27,11 @@ def _names(settings: Settings) -> list[str]:
 
 def test_each_preset_runs_its_steps_in_order():
     assert {name: _names(_settings(name)) for name in PRESETS} == {
-        "default": ["search", "modes", "fit", "rescale", "recognise", "outline", "reject",
-                    "probabilities", "place"],
+        "default": ["search", "modes", "fit", "rescale", "recognise", "keypoints", "outline",
+                    "reject", "probabilities", "place"],
         "cluttered": ["search", "rerank by template", "modes", "fit", "local refinement",
-                      "half-turn", "share scale", "recognise", "outline", "contrast",
-                      "reject", "probabilities", "place"],
+                      "half-turn", "share scale", "recognise", "keypoints", "outline",
+                      "contrast", "reject", "probabilities", "place"],
         "turntable": ["search", "modes", "fit", "local refinement", "recognise", "outline",
                       "reject", "probabilities", "place"],
         "category": ["search", "verify", "modes", "fit", "recognise", "appearance", "reject",
@@ -53,6 +54,7 @@ FLIPS = {
     "appearance": ({"appearance": AppearanceOptions(candidates=0)}, {"appearance": None}),
     "outline": ({"refine__outline": True}, {"refine__outline": False}),
     "contrast": ({"search__contrast": True}, {"search__contrast": False}),
+    "keypoints": ({"refine__keypoints": True}, {"refine__keypoints": False}),
 }
 
 
@@ -72,13 +74,15 @@ def test_every_step_has_a_flip_or_always_runs():
 
 
 def test_training_learns_what_the_steps_ask_for(synthetic_training):
-    assert artefacts(_settings("default")) == frozenset()
-    assert artefacts(_settings("cluttered")) == {"templates"}
+    assert artefacts(_settings("default")) == {"keypoints"}
+    assert artefacts(_settings("cluttered")) == {"templates", "keypoints"}
     assert artefacts(_settings("category")) == {"appearance", "ranked probes"}
+    assert "keypoints" in artefacts(_settings("turntable", refine__keypoints=True))
     # The local refinement weighs by the templates: it asks for them alone.
     only_weigh = TemplateOptions(rerank=False, half_turn=False)
-    assert artefacts(_settings("cluttered", templates=only_weigh)) == {"templates"}
-    assert artefacts(_settings("cluttered", templates=only_weigh, refine__local=None)) == set()
+    assert artefacts(_settings("cluttered", templates=only_weigh)) == {"templates", "keypoints"}
+    assert artefacts(_settings("cluttered", templates=only_weigh, refine__local=None,
+                               refine__keypoints=False)) == set()
     images, az, boxes = synthetic_training
     asked = PoseEstimator(templates=only_weigh).set_params(refine__local="profile").fit(
         images, az, boxes=boxes)
@@ -194,3 +198,33 @@ def test_image_levels_are_checked():
     for bad in ((), (1.0, 1.0), (0.05,), (1.5,), (1.0, 0.8, 0.6, 0.4, 0.2), "1", (float("nan"),)):
         with pytest.raises(ValueError, match="image_levels"):
             SearchOptions(image_levels=bad)
+
+
+def test_a_pose_the_keypoints_turn_keeps_the_found_one_next(fitted_estimator, draw, monkeypatch):
+    est = copy.deepcopy(fitted_estimator).set_params(refine__keypoints=True, min_score=0.0)
+    image = draw(np.radians(50.0))
+    found = est.set_params(refine__keypoints=False).estimate(image)
+    monkeypatch.setattr(pipeline, "keypoint_refine", lambda h, model, image, views=None: (
+        replace(h, azimuth=float(np.mod(h.azimuth + np.pi, 2 * np.pi))), True))
+    turned = est.set_params(refine__keypoints=True).estimate(image)
+    assert turned.best.azimuth == pytest.approx(np.mod(found.best.azimuth + np.pi, 2 * np.pi))
+    assert turned.modes[1].azimuth == found.best.azimuth
+    assert len(turned.modes) <= est.max_modes
+
+
+def test_the_keypoints_compare_one_instances_views_only(synthetic_training, draw, monkeypatch):
+    images, az, boxes = synthetic_training
+    other = [np.ascontiguousarray(np.asarray(i)[::-1]) for i in images]   # upside down
+    est = PoseEstimator(refine=pipeline.RefineOptions(keypoints=True), recognition=None,
+                        min_score=0.0).fit(list(images) + other, np.concatenate([az, az]),
+                                           boxes=np.concatenate([boxes, boxes]),
+                                           instances=["a"] * len(images) + ["b"] * len(images))
+    seen = []
+    monkeypatch.setattr(pipeline, "keypoint_refine",
+                        lambda h, model, image, views=None: seen.append(views) or (h, False))
+    est.estimate(draw(np.radians(50.0)))
+    assert seen == []                  # several instances, none recognised: nothing compared
+    est.set_params(recognition=RecognitionOptions())
+    found = est.estimate(draw(np.radians(50.0)))
+    half = len(images)
+    assert found.instance == "a" and len(seen) == 1 and list(seen[0]) == list(range(half))

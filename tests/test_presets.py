@@ -21,7 +21,11 @@ def test_the_four_presets_and_their_provenance():
 
 def test_presets_differ_where_they_should():
     default, clutter = PRESETS["default"], PoseEstimator.from_preset("cluttered")
-    assert set(default.params) == {"min_score", "search"} and clutter.refine.local == "profile"
+    assert set(default.params) == {"min_score", "search", "refine"}
+    assert clutter.refine.local == "profile"
+    # The keypoint step where it helped (docs/DEFAULTS.md), not on the turntable.
+    assert default.params["refine"].keypoints and clutter.refine.keypoints
+    assert not PoseEstimator.from_preset("turntable").refine.keypoints
     # Every preset rejects by default (benchmarks/default_thresholds.py) and calibrates its
     # probability (benchmarks/calibrate_probability.py).
     assert all(PoseEstimator.from_preset(name).min_score > 0.0 for name in PRESETS)

@@ -25,6 +25,8 @@ recognise             ``recognition``                 the instance, and its own 
                                                       (Sec. III-B)
 appearance            ``appearance``                  the box regressed, the nearest view's
                                                       viewpoint
+keypoints             ``refine.keypoints``            the best mode's side and viewpoint from
+                                                      keypoints matched to the views'
 outline               ``refine.outline``              each mode's box from its views' outline
 contrast              ``search.contrast``             each mode's score over its frame's
                                                       background spread
@@ -76,6 +78,8 @@ from posevote.inference.coverage import rerank_by_coverage
 from posevote.inference.probes import ProbeSet
 from posevote.inference.search import probe
 from posevote.inference.setup import SearchOptions, SearchSetup, search_maps
+from posevote.keypoints.model import KeypointCollector
+from posevote.keypoints.refine import keypoint_refine
 from posevote.model.density import origin_offset
 from posevote.model.kernels import K1_CUTOFF, KernelOptions
 from posevote.model.outline import outline_at, outline_box
@@ -402,6 +406,24 @@ def appearance(state: EstimateState) -> EstimateState:
         best, state.grey(), state.trained.model, trained))
 
 
+def keypoints(state: EstimateState) -> EstimateState:
+    """The best mode turned to the side its texture shows and its viewpoint read between the
+    views, from keypoints matched to theirs (a model of one instance, or the recognised
+    instance's views); a turned pose keeps the found one as the next mode."""
+    if not state.hypotheses:
+        return state
+    full = state.trained.full_model
+    names = full.instance_names
+    if len(names) > 1 and state.instance not in names:
+        return state                  # another instance's texture is no evidence
+    views = (np.flatnonzero(full.view_instance == names.index(state.instance))
+             if len(names) > 1 else None)
+    pose, turned = keypoint_refine(state.hypotheses[0], full, state.image, views=views)
+    hyps = state.hypotheses
+    return state.with_hypotheses([pose, *hyps][:state.settings.max_modes] if turned
+                                 else [pose, *hyps[1:]])
+
+
 def outline(state: EstimateState) -> EstimateState:
     """Each mode's box from its views' outline, where the model has outlines (tighter than
     the views' box turned)."""
@@ -545,6 +567,9 @@ STEPS: tuple[Step, ...] = (
          active=lambda s: s.recognition is not None, when="several instances"),
     Step(name="appearance", run=appearance, switch="appearance",
          active=lambda s: s.appearance is not None, needs=lambda s: frozenset({"appearance"})),
+    Step(name="keypoints", run=keypoints, switch="refine.keypoints",
+         active=lambda s: s.refine.keypoints, needs=lambda s: frozenset({"keypoints"}),
+         when="one instance, or a recognised one"),
     Step(name="outline", run=outline, switch="refine.outline", active=lambda s: s.refine.outline),
     Step(name="contrast", run=contrast, switch="search.contrast",
          active=lambda s: s.search.contrast),
@@ -569,7 +594,8 @@ def artefacts(settings: Settings, steps: Sequence[Step] | None = None) -> frozen
 
 #: What learns each thing a step needs from training.
 COLLECTORS: dict[str, CollectorFactory] = {"templates": TemplateCollector,
-                                           "appearance": AppearanceCollector}
+                                           "appearance": AppearanceCollector,
+                                           "keypoints": KeypointCollector}
 
 
 def collectors(needs: frozenset[str]) -> list[CollectorFactory]:
@@ -580,7 +606,9 @@ def collectors(needs: frozenset[str]) -> list[CollectorFactory]:
 def held(trained: TrainedModel) -> frozenset[str]:
     """What a fitted model holds besides its edges, which a partial fit learns for the new
     views too."""
-    found = {"templates"} if trained.full_model.view_template is not None else set()
+    full = trained.full_model
+    found = {"templates"} if full.view_template is not None else set()
+    found |= {"keypoints"} if full.keypoint_xy is not None else set()
     return frozenset(found | ({"appearance"} if trained.appearance is not None else set()))
 
 

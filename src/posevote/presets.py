@@ -78,7 +78,8 @@ PRESETS: dict[str, Preset] = {p.name: p for p in (
         # The threshold of the best balanced accuracy between views of the object
         # and views of the 39 other objects plus background crops.
         params={"min_score": 0.54,
-                "search": SearchOptions(calibration=(0.918, 2.056, 2.760))}),
+                "search": SearchOptions(calibration=(0.918, 2.056, 2.760)),
+                "refine": RefineOptions(keypoints=True)}),
     Preset(
         name="cluttered",
         description="one object anywhere in clutter, tilted by up to 30 deg, 0.7-2.6 times "
@@ -99,7 +100,8 @@ PRESETS: dict[str, Preset] = {p.name: p for p in (
                                         object_kernel=True, chance_correction=True,
                                         density_cap=0.5, calibration=(0.735, 4.049, 10.010),
                                         image_levels=(1.0, 0.5), contrast=True),
-                "refine": RefineOptions(rescale=False, local="profile", share_scale=True),
+                "refine": RefineOptions(rescale=False, local="profile", share_scale=True,
+                                        keypoints=True),
                 "templates": TemplateOptions()}),
     Preset(
         name="turntable",

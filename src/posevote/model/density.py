@@ -84,6 +84,14 @@ class PoseModel:
         reference point in ``A`` directions, reference pixels, upright
         (:mod:`posevote.model.outline`; a view without a mask: its box);
         None: trained without masks (a pose's box is its view's box turned).
+    keypoint_xy : ndarray, shape (N, 2), or None
+        The views' SIFT keypoints (:mod:`posevote.keypoints.model`), from
+        their view's reference point, upright, reference pixels; None: not
+        learnt.
+    keypoint_descriptor : ndarray of uint8, shape (N, 128), or None
+        Their descriptors; present with ``keypoint_xy``.
+    keypoint_view : ndarray of int, shape (N,), or None
+        The view of each keypoint; present with ``keypoint_xy``.
     """
 
     xy: NDArray[np.float64]
@@ -104,6 +112,9 @@ class PoseModel:
     view_template: NDArray[np.float16] | None = None
     view_template_cell: NDArray[np.float64] | None = None
     view_outline: NDArray[np.float64] | None = None
+    keypoint_xy: NDArray[np.float64] | None = None
+    keypoint_descriptor: NDArray[np.uint8] | None = None
+    keypoint_view: NDArray[np.int64] | None = None
 
     def size_of(self, instance: int) -> float:
         """The training size of an instance relative to the reference (1.0 if unknown)."""
@@ -210,6 +221,11 @@ class PoseModel:
                       else self.view_template_cell[views],
                       view_outline=None if self.view_outline is None
                       else self.view_outline[views])
+        if self.keypoint_view is not None:
+            kept = local[self.keypoint_view] >= 0
+            fields.update(keypoint_xy=self.keypoint_xy[kept],  # type: ignore[index]
+                          keypoint_descriptor=self.keypoint_descriptor[kept],  # type: ignore[index]
+                          keypoint_view=local[self.keypoint_view[kept]])
         return PoseModel(**fields)
 
     def with_weights(self, weight: NDArray[np.float64]) -> PoseModel:

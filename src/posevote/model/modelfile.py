@@ -19,7 +19,8 @@ for morphed models; ``view_origin`` when training gave the object's origin;
 ``view_template_cell``, the views' grey templates; ``view_outline`` when
 training gave masks;
 ``view_descriptor``, ``objectness`` and ``box_regressor`` for the
-appearance stages. Versions 5 and 6 are read: version 5 named the
+appearance stages; ``keypoint_xy``, ``keypoint_descriptor`` (uint8) and
+``keypoint_view`` for the keypoint step. Versions 5 and 6 are read: version 5 named the
 refinement steps' switches ``fitting`` and ``local_refinement`` and the
 template steps ``search.rerank = "template"``; its parameters are read as
 the same steps' switches (:func:`_version_5_params`). Files of versions 1-4
@@ -61,6 +62,9 @@ _ARRAYS = (*_FEATURE_ARRAYS, "view_azimuth", "view_elevation", "view_box", "view
 _MORPH_ARRAYS = ("shift", "view_neighbour")
 #: Optional per-view arrays, written when the model has them.
 _VIEW_OPTIONAL = ("view_origin", "view_template", "view_template_cell", "view_outline")
+#: The views' keypoints, written when the model has them (the searched and full models share
+#: them).
+_KEYPOINT_ARRAYS = ("keypoint_xy", "keypoint_descriptor", "keypoint_view")
 
 
 def save_model(path: str | Path, trained: TrainedModel, params: dict[str, Any], *,
@@ -95,7 +99,7 @@ def save_model(path: str | Path, trained: TrainedModel, params: dict[str, Any], 
                   else list(trained.appearance.window)},
     }
     arrays = {name: getattr(model, name) for name in _ARRAYS}
-    for name in (*_MORPH_ARRAYS, *_VIEW_OPTIONAL):
+    for name in (*_MORPH_ARRAYS, *_VIEW_OPTIONAL, *_KEYPOINT_ARRAYS):
         if getattr(model, name) is not None:
             arrays[name] = getattr(model, name)
     if full is not model:
@@ -177,7 +181,8 @@ def load_model(path: str | Path) -> tuple[TrainedModel, dict[str, Any]]:
                                  f"{', '.join(missing)})")
             _check_sizes(path, data)
             arrays = {name: data[name] for name in _ARRAYS}
-            arrays.update({name: data[name] for name in (*_MORPH_ARRAYS, *_VIEW_OPTIONAL)
+            arrays.update({name: data[name]
+                           for name in (*_MORPH_ARRAYS, *_VIEW_OPTIONAL, *_KEYPOINT_ARRAYS)
                            if name in data.files})
             full = ({name: data[f"full_{name}"] for name in _FEATURE_ARRAYS}
                     if "full_xy" in data.files else None)
@@ -255,7 +260,7 @@ def _version_5_params(params: dict[str, Any], n_instances: int) -> dict[str, Any
     the appearance stages, the local refinement's profile when fitting (else a
     polish), the outline without the appearance stages, and the half-turn and
     share-scale steps with the template re-ranking and the local refinement
-    where no instance was to be recognised.
+    where no instance was to be recognised, and no keypoint step.
     """
     out = dict(params)
     fitting, local = out.pop("fitting", True), out.pop("local_refinement", False)
@@ -270,7 +275,7 @@ def _version_5_params(params: dict[str, Any], n_instances: int) -> dict[str, Any
     out["refine"] = {"fit": fitting, "rescale": bool(fitting and not local and not looks),
                      "local": ("profile" if fitting else "polish") if local else None,
                      "share_scale": bool(template and local and not recognising),
-                     "outline": not looks}
+                     "outline": not looks, "keypoints": False}
     out["templates"] = {"rerank": True, "weigh": True,
                         "half_turn": bool(local and not recognising)} if template else None
     return out
@@ -291,7 +296,7 @@ def _check_sizes(path: Path, data: Any) -> None:
                 raise ValueError(f"{path}: corrupt model file (array {name}: {exc})") from None
         n = int(np.prod(shape, dtype=np.float64)) if shape else 1
         if dtype.hasobject or n * dtype.itemsize > MAX_MODEL_BYTES * 4 \
-                or (name in ("theta", "full_theta") and n > MAX_FEATURES) \
+                or (name in ("theta", "full_theta", "keypoint_view") and n > MAX_FEATURES) \
                 or (name == "view_azimuth" and n > MAX_VIEWS):
             raise ValueError(f"{path}: corrupt model file (array {name} declares shape {shape} "
                              f"of {dtype}, past the limits)")
@@ -392,6 +397,17 @@ def _build(path: Path, arrays: dict[str, np.ndarray], header: dict[str, Any]) ->
                      and np.issubdtype(outline.dtype, np.number)
                      and bool(np.all(np.isfinite(outline)))
                      and bool(np.all(outline + np.roll(outline, OUTLINE_ANGLES // 2, axis=1) > 0)))
+    kp_xy, kp_desc, kp_view = (arrays.get(name) for name in _KEYPOINT_ARRAYS)
+    if kp_xy is not None or kp_desc is not None or kp_view is not None:
+        # Together: a position, a SIFT descriptor of bytes and a view per keypoint.
+        shapes_ok = (shapes_ok and kp_xy is not None and kp_desc is not None
+                     and kp_view is not None and kp_view.ndim == 1
+                     and kp_xy.shape == (len(kp_view), 2) and kp_desc.shape == (len(kp_view), 128)
+                     and kp_desc.dtype == np.uint8 and kp_view.dtype.kind in "iu"
+                     and np.issubdtype(kp_xy.dtype, np.floating)
+                     and bool(np.all(np.isfinite(kp_xy)))
+                     and (kp_xy.size == 0 or float(np.abs(kp_xy).max()) <= 1e6)
+                     and (kp_view.size == 0 or (kp_view.min() >= 0 and kp_view.max() < k)))
     if not shapes_ok:
         raise ValueError(f"{path}: corrupt model file (inconsistent array shapes)")
     for name in ("xy", "theta", "weight", "view_azimuth", "view_elevation", "view_box"):
@@ -434,4 +450,7 @@ def _build(path: Path, arrays: dict[str, np.ndarray], header: dict[str, Any]) ->
         view_template=None if template is None else template.astype(np.float16),
         view_template_cell=None if cell is None else cell.astype(np.float64),
         view_outline=None if outline is None else outline.astype(np.float64),
+        keypoint_xy=None if kp_xy is None else kp_xy.astype(np.float64),
+        keypoint_descriptor=kp_desc,
+        keypoint_view=None if kp_view is None else kp_view.astype(np.int64),
     )

@@ -38,6 +38,11 @@ class RefineOptions(Options):
     outline : bool, default True
         Give each mode the box of its views' outline, where the model learnt
         outlines from masks (:mod:`posevote.model.outline`).
+    keypoints : bool, default False
+        Turn the best mode to the side its texture shows and read its
+        viewpoint between the training views from SIFT keypoints matched to
+        theirs (:func:`~posevote.keypoints.refine.keypoint_refine`; training
+        keeps each view's keypoints).
     """
 
     fit: bool = True
@@ -45,9 +50,10 @@ class RefineOptions(Options):
     local: str | None = None
     share_scale: bool = False
     outline: bool = True
+    keypoints: bool = False
 
     def __post_init__(self) -> None:
-        for name in ("fit", "rescale", "share_scale", "outline"):
+        for name in ("fit", "rescale", "share_scale", "outline", "keypoints"):
             self._flag(name)
         if self.local not in LOCAL_REFINEMENTS:
             self._fail("local", f"one of {', '.join(map(repr, LOCAL_REFINEMENTS))}", self.local)

@@ -1,0 +1,268 @@
+"""The best mode's side and its viewpoint between the training views, from keypoints.
+
+The test image's SIFT keypoints around the best mode's box, taken into the
+features' frame by the mode's own position, scale and in-plane angle, are
+matched to each training view's (Lowe's ratio test) and kept where a
+similarity fitted by RANSAC takes them onto the view's: a view's inliers are
+the texture's evidence for it. Where a view far from the estimate holds
+clearly more of that evidence than the views near it, the estimate turns to
+that view (a printed side is not its mirror). Then the viewpoint is read
+between the best view and its neighbour of most inliers: the keypoints seen
+in the test image and both views move, from one view to the other, along the
+motions the two views give them, and how far they have moved says where the
+test view lies between them (:func:`share_between`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from posevote.geometry import angle_difference, rotate_points, viewing_direction
+from posevote.keypoints.model import detect_keypoints
+from posevote.model.density import PoseModel
+from posevote.results import Hypothesis
+
+#: Lowe's ratio: a test keypoint's nearest descriptor in a view is a match when it is nearer
+#: than this share of the second nearest.
+MATCH_RATIO = 0.8
+#: RANSAC's tolerance for the similarity onto a view, a share of its box's diagonal.
+INLIER_SHARE = 0.025
+#: The fewest inliers that speak for a view.
+MIN_INLIERS = 8
+#: A view this far from the estimate turns it when it holds this many times the inliers of
+#: the views within NEAR_ANGLE of it.
+TURN_ANGLE = math.radians(45.0)
+NEAR_ANGLE = math.radians(30.0)
+TURN_RATIO = 2.0
+#: A view's neighbours lie within this many times its nearest view's distance.
+NEIGHBOUR_SPREAD = 2.5
+#: The fewest keypoints seen in the test image and both views that read the viewpoint
+#: between them.
+MIN_SHARED = 4
+#: The fit of the share between two views drops the keypoints off by more than this many
+#: times the median residual (and this many reference pixels), this many times.
+TRIM_SPREAD = 2.5
+TRIM_FLOOR = 2.0
+TRIM_ROUNDS = 3
+#: The test keypoints are those within this share of the box's width and height from its
+#: centre.
+SEARCH_SHARE = 0.55
+#: The similarity onto a view may scale the mode's frame by this factor at most, either way,
+#: and turn it by this angle at most: the mode has placed the object already.
+MAX_SCALE = 1.5
+MAX_TURN = math.radians(30.0)
+
+
+def test_keypoints(image: NDArray[np.floating], hypothesis: Hypothesis
+                   ) -> tuple[NDArray[np.float64], NDArray[np.uint8]]:
+    """The image's keypoints around the hypothesis's box, in the features' frame (from its
+    position, upright, in reference pixels: its scale and in-plane angle undone)."""
+    x, y, w, h = hypothesis.box
+    cu, cv = x + w / 2.0, y + h / 2.0
+    half_u, half_v = SEARCH_SHARE * max(w, 1.0), SEARCH_SHARE * max(h, 1.0)
+    rows, cols = image.shape[:2]
+    u0, u1 = max(0, int(cu - half_u)), min(cols, int(math.ceil(cu + half_u)) + 1)
+    v0, v1 = max(0, int(cv - half_v)), min(rows, int(math.ceil(cv + half_v)) + 1)
+    if u1 - u0 < 8 or v1 - v0 < 8:
+        return np.zeros((0, 2)), np.zeros((0, 128), dtype=np.uint8)
+    xy, desc = detect_keypoints(image[v0:v1, u0:u1])
+    xy = xy + (u0, v0)
+    upright = rotate_points(xy - np.asarray(hypothesis.position), -hypothesis.inplane)
+    return upright / hypothesis.scale, desc
+
+
+def view_inliers(xy: NDArray[np.float64], desc: NDArray[np.uint8], model: PoseModel,
+                 views: NDArray[np.int64]) -> list[NDArray[np.int64]]:
+    """Each view's inliers: (test keypoint, model keypoint) index pairs that a similarity
+    fitted by RANSAC takes within :data:`INLIER_SHARE` of the view's box diagonal."""
+    assert model.keypoint_xy is not None and model.keypoint_descriptor is not None
+    assert model.keypoint_view is not None
+    matcher = cv2.BFMatcher(cv2.NORM_L2)
+    test = desc.astype(np.float32)
+    out = []
+    for k in views:
+        own = np.flatnonzero(model.keypoint_view == k)
+        none = np.zeros((0, 2), dtype=np.int64)
+        if len(own) < 2 or len(test) < 2:
+            out.append(none)
+            continue
+        knn = matcher.knnMatch(test, model.keypoint_descriptor[own].astype(np.float32), k=2)
+        pairs = np.array([(m[0].queryIdx, own[m[0].trainIdx]) for m in knn
+                          if len(m) == 2 and m[0].distance < MATCH_RATIO * m[1].distance],
+                         dtype=np.int64).reshape(-1, 2)
+        # One test keypoint per view keypoint: a repeated texture of the clutter matches
+        # many onto one, which a shrunk similarity takes as inliers.
+        pairs = pairs[np.unique(pairs[:, 1], return_index=True)[1]]
+        if len(pairs) < MIN_SHARED:
+            out.append(none)
+            continue
+        tolerance = INLIER_SHARE * float(np.hypot(*model.view_box[k]))
+        fitted, inlier = cv2.estimateAffinePartial2D(
+            xy[pairs[:, 0]].astype(np.float32),
+            model.keypoint_xy[pairs[:, 1]].astype(np.float32), method=cv2.RANSAC,
+            ransacReprojThreshold=tolerance, maxIters=500, refineIters=5)
+        plausible = fitted is not None and _plausible(fitted)
+        out.append(pairs[inlier.ravel() > 0] if plausible else none)
+    return out
+
+
+def _plausible(fitted: NDArray[Any]) -> bool:
+    """Whether a similarity (2 x 3) keeps the mode's scale within :data:`MAX_SCALE` and its
+    in-plane angle within :data:`MAX_TURN`."""
+    scale = math.hypot(fitted[0, 0], fitted[1, 0])
+    turn = math.atan2(fitted[1, 0], fitted[0, 0])
+    return 1.0 / MAX_SCALE <= scale <= MAX_SCALE and abs(turn) <= MAX_TURN
+
+
+def share_between(test: NDArray[np.float64], start: NDArray[np.float64],
+                  end: NDArray[np.float64]) -> float | None:
+    """How far from one view to the next the test view lies: ``t`` in
+    ``test ~ s ((1 - t) start + t end) + c``, by least squares.
+
+    Parameters
+    ----------
+    test, start, end : ndarray, shape (N, 2)
+        The same keypoints in the test image and in the two views (features'
+        frame).
+
+    Returns
+    -------
+    float or None
+        ``t`` (0 at ``start``, 1 at ``end``); None where the keypoints do not
+        move between the views or the test scale ``s`` is off by more than 2x.
+
+    Notes
+    -----
+    The keypoints off the fit by more than :data:`TRIM_SPREAD` times the
+    median residual are dropped and the fit made again, :data:`TRIM_ROUNDS`
+    times. The shift ``c`` takes up the reference points' offset, the scale ``s`` the
+    estimate's scale error; each keypoint's own motion ``end - start`` differs
+    from the others' (parallax), which the shift cannot take up.
+    """
+    keep = np.ones(len(test), dtype=bool)
+    t = None
+    for _ in range(TRIM_ROUNDS + 1):
+        fitted = _fit_share(test[keep], start[keep], end[keep])
+        if fitted is None:
+            return t
+        t, s = fitted
+        residual = test / s - (1.0 - t) * start - t * end
+        residual = np.hypot(*(residual - residual[keep].mean(axis=0)).T)
+        keep = residual <= max(TRIM_FLOOR, TRIM_SPREAD * float(np.median(residual[keep])))
+        if keep.sum() < MIN_SHARED:
+            break
+    return t
+
+
+def _fit_share(test: NDArray[np.float64], start: NDArray[np.float64], end: NDArray[np.float64]
+               ) -> tuple[float, float] | None:
+    """``(t, s)`` of :func:`share_between` on all the given keypoints, alternating between
+    the scale and the share."""
+    motion = end - start
+    spread = motion - motion.mean(axis=0)
+    if float((spread * spread).sum()) < 1e-9:
+        return None
+    t, s = 0.5, 1.0
+    for _ in range(5):
+        mid = (1.0 - t) * start + t * end
+        mid_c, test_c = mid - mid.mean(axis=0), test - test.mean(axis=0)
+        s = float((test_c * mid_c).sum() / max(float((mid_c * mid_c).sum()), 1e-12))
+        if not 0.5 < s < 2.0:
+            return None
+        moved = test / s - start
+        t = float((spread * (moved - moved.mean(axis=0))).sum() / (spread * spread).sum())
+    return t, s
+
+
+def keypoint_refine(hypothesis: Hypothesis, model: PoseModel, image: NDArray[np.floating],
+                    *, views: NDArray[np.int64] | None = None) -> tuple[Hypothesis, bool]:
+    """The best mode turned to the side its texture shows, its viewpoint read between the
+    training views.
+
+    Parameters
+    ----------
+    hypothesis : Hypothesis
+        The best mode (image pixels).
+    model : PoseModel
+        A model with keypoints (``keypoint_xy``).
+    image : ndarray, shape (H, W)
+        The grey test image in [0, 1].
+    views : ndarray of int, optional
+        The views to compare (default: all; a recognised instance's).
+
+    Returns
+    -------
+    Hypothesis
+        The mode with its viewpoint from the keypoints (its score, scale,
+        in-plane angle and position kept), or ``hypothesis`` where too few
+        keypoints match.
+    bool
+        Whether it was turned to a view more than :data:`TURN_ANGLE` away.
+
+    Raises
+    ------
+    ValueError
+        If the model has no keypoints (fitted without the keypoint step).
+    """
+    if model.keypoint_xy is None:
+        raise ValueError("the keypoint step needs the views' keypoints, learnt when the model "
+                         "is fitted with it; fit (or retrain) with "
+                         "refine=RefineOptions(keypoints=True)")
+    views = np.arange(model.n_views) if views is None else np.asarray(views, dtype=np.int64)
+    xy, desc = test_keypoints(image, hypothesis)
+    if len(xy) < MIN_INLIERS or len(views) == 0:
+        return hypothesis, False
+    inliers = view_inliers(xy, desc, model, views)
+    counts = np.array([len(i) for i in inliers])
+    best = int(np.argmax(counts))
+    if counts[best] < MIN_INLIERS:
+        return hypothesis, False
+    direction = viewing_direction(model.view_azimuth[views], model.view_elevation[views])
+    here = viewing_direction(hypothesis.azimuth, hypothesis.elevation)
+    away = np.arccos(np.clip(direction @ here, -1.0, 1.0))
+    turned = bool(away[best] > TURN_ANGLE and counts[best] >= TURN_RATIO * max(
+        counts[away <= NEAR_ANGLE].max(initial=0), 1))
+    if not turned and away[best] > NEAR_ANGLE:
+        return hypothesis, False
+    # The neighbours: the views nearest the best one (its ring's two, and the rings'
+    # over the sphere, on a grid as irregular as a cross-validation fold's); the test view
+    # lies toward the one of most inliers that it has moved toward.
+    apart = np.arccos(np.clip(direction @ direction[best], -1.0, 1.0))
+    apart[best] = np.inf
+    near = np.flatnonzero(apart <= NEIGHBOUR_SPREAD * apart.min())
+    t, other = None, best
+    for other in near[np.argsort(-counts[near], kind="stable")]:
+        t = _between(xy, model, inliers[best], inliers[other])
+        if t is not None and t >= 0.0:
+            break
+        t = None
+    if t is None and not turned:
+        return hypothesis, False
+    azimuth = float(model.view_azimuth[views[best]])
+    elevation = float(model.view_elevation[views[best]])
+    if t is not None:
+        t = min(t, 1.0)
+        azimuth += t * float(angle_difference(model.view_azimuth[views[other]], azimuth))
+        elevation += t * float(model.view_elevation[views[other]] - elevation)
+    moved = replace(hypothesis, azimuth=float(np.mod(azimuth, 2.0 * np.pi)),
+                    elevation=elevation)
+    return moved, turned
+
+
+def _between(xy: NDArray[np.float64], model: PoseModel, first: NDArray[np.int64],
+             second: NDArray[np.int64]) -> float | None:
+    """:func:`share_between` on the test keypoints that are inliers of both views."""
+    assert model.keypoint_xy is not None
+    in_first = dict(zip(first[:, 0].tolist(), first[:, 1].tolist(), strict=True))
+    in_second = dict(zip(second[:, 0].tolist(), second[:, 1].tolist(), strict=True))
+    shared = sorted(set(in_first) & set(in_second))
+    if len(shared) < MIN_SHARED:
+        return None
+    return share_between(xy[shared], model.keypoint_xy[[in_first[q] for q in shared]],
+                         model.keypoint_xy[[in_second[q] for q in shared]])

@@ -1,0 +1,79 @@
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from posevote import PoseEstimator
+from posevote.geometry import angular_error
+from posevote.keypoints.refine import keypoint_refine, share_between
+
+
+def test_share_between_reads_how_far_the_keypoints_moved():
+    rng = np.random.default_rng(0)
+    start = rng.uniform(-40, 40, (30, 2))
+    # Parallax: each keypoint moves its own way (the nearer, the farther).
+    end = start + np.column_stack([rng.uniform(2, 12, 30), rng.normal(0, 1, 30)])
+    for t in (0.0, 0.3, 0.75, 1.0):
+        test = 1.1 * ((1 - t) * start + t * end) + (5.0, -3.0) + rng.normal(0, 0.2, (30, 2))
+        assert share_between(test, start, end) == pytest.approx(t, abs=0.05)
+    # A few wrong matches are dropped.
+    test = (0.6 * start + 0.4 * end) + (2.0, 2.0)
+    test[:3] += 30.0
+    assert share_between(test, start, end) == pytest.approx(0.4, abs=0.05)
+
+
+def test_share_between_needs_a_motion_that_differs_between_keypoints():
+    start = np.random.default_rng(1).uniform(-40, 40, (10, 2))
+    assert share_between(start + 1.0, start, start + 4.0) is None      # one shift for all
+    assert share_between(3.0 * start, start, start + np.arange(20.0).reshape(10, 2)) is None
+
+
+@pytest.fixture(scope="module")
+def turning(cylinder):
+    """The cylinder's model from views every 20 degrees, with the keypoint step."""
+    azimuths = np.radians(np.arange(0, 360, 20))
+    views = [cylinder(a) for a in azimuths]
+    return PoseEstimator.from_preset("default", min_score=0.0, refine__keypoints=True).fit(
+        [v[0] for v in views], np.column_stack([azimuths, np.zeros((18, 2))]),
+        boxes=[v[1] for v in views])
+
+
+def test_the_step_reads_the_viewpoint_between_the_views(turning, cylinder):
+    errors, without = [], []
+    for azimuth in np.radians([5.0, 10.0, 47.0, 133.0, 250.0, 318.0]):
+        image, _ = cylinder(azimuth)
+        errors.append(angular_error(turning.estimate(image).best.azimuth, azimuth))
+        off = turning.set_params(refine__keypoints=False).estimate(image).best.azimuth
+        without.append(angular_error(off, azimuth))
+        turning.set_params(refine__keypoints=True)
+    assert np.degrees(np.max(errors)) < 2.5
+    assert np.mean(errors) < np.mean(without)
+
+
+def test_a_half_turned_pose_turns_back_to_its_printed_side(turning, cylinder):
+    image, _ = cylinder(np.radians(70.0))
+    found = turning.estimate(image).best
+    flipped = replace(found, azimuth=float(np.mod(found.azimuth + np.pi, 2 * np.pi)))
+    back, turned = keypoint_refine(flipped, turning.full_model_, image)
+    assert turned and np.degrees(angular_error(back.azimuth, np.radians(70.0))) < 2.5
+    # The found pose stays where it is, and the score and the box with it.
+    same, turned = keypoint_refine(found, turning.full_model_, image)
+    assert not turned and (same.score, same.box) == (found.score, found.box)
+
+
+def test_nothing_to_match_leaves_the_pose(turning):
+    blank = np.zeros((128, 128))
+    found = turning.full_model_
+    pose = turning.set_params(refine__keypoints=False).estimate(np.pad(
+        np.eye(64), 32)).best
+    turning.set_params(refine__keypoints=True)
+    assert keypoint_refine(pose, found, blank) == (pose, False)
+
+
+def test_a_model_without_keypoints_is_refused(turning, cylinder):
+    plain = PoseEstimator.from_preset("default", refine__keypoints=False).fit(
+        [cylinder(0.0)[0]], np.zeros((1, 3)), boxes=[cylinder(0.0)[1]])
+    image, _ = cylinder(0.0)
+    pose = plain.estimate(image).best or turning.estimate(image).best
+    with pytest.raises(ValueError, match="refine=RefineOptions\\(keypoints=True\\)"):
+        keypoint_refine(pose, plain.full_model_, image)
