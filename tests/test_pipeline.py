@@ -14,6 +14,7 @@ from posevote.appearance import AppearanceOptions
 from posevote.pipeline import STEPS, Built, Settings, active_steps, artefacts, describe
 from posevote.presets import PRESETS
 from posevote.recognition import RecognitionOptions
+from posevote.refinement.probability import calibrated
 from posevote.templates import TemplateOptions
 
 
@@ -205,10 +206,13 @@ def test_a_pose_the_keypoints_turn_keeps_the_found_one_next(fitted_estimator, dr
     image = draw(np.radians(50.0))
     found = est.set_params(refine__keypoints=False).estimate(image)
     monkeypatch.setattr(pipeline, "keypoint_refine", lambda h, model, image, views=None: (
-        replace(h, azimuth=float(np.mod(h.azimuth + np.pi, 2 * np.pi))), True))
+        replace(h, azimuth=float(np.mod(h.azimuth + np.pi, 2 * np.pi))), 0.9))
     turned = est.set_params(refine__keypoints=True).estimate(image)
     assert turned.best.azimuth == pytest.approx(np.mod(found.best.azimuth + np.pi, 2 * np.pi))
     assert turned.modes[1].azimuth == found.best.azimuth
+    # The texture's share of the inliers is the share its probability reads.
+    assert turned.best.probability == pytest.approx(
+        calibrated(0.9, turned.best.score, est.search.calibration))
     assert len(turned.modes) <= est.max_modes
 
 
@@ -221,7 +225,7 @@ def test_the_keypoints_compare_one_instances_views_only(synthetic_training, draw
                                            instances=["a"] * len(images) + ["b"] * len(images))
     seen = []
     monkeypatch.setattr(pipeline, "keypoint_refine",
-                        lambda h, model, image, views=None: seen.append(views) or (h, False))
+                        lambda h, model, image, views=None: seen.append(views) or (h, None))
     est.estimate(draw(np.radians(50.0)))
     assert seen == []                  # several instances, none recognised: nothing compared
     est.set_params(recognition=RecognitionOptions())

@@ -217,8 +217,9 @@ class EstimateState:
         The recognised instance and its margin.
     front_back : float or None
         The best mode's share when the appearance step chose its viewpoint
-        (its side against the half-turned one by HOG); None: its share of the
-        search's profile.
+        (its side against the half-turned one by HOG) or the keypoint step
+        turned it (its view's inliers against the found side's); None: its
+        share of the search's profile.
     top_score : float
         The best mode's score before the rejection.
     progress : callable or None
@@ -409,7 +410,8 @@ def appearance(state: EstimateState) -> EstimateState:
 def keypoints(state: EstimateState) -> EstimateState:
     """The best mode turned to the side its texture shows and its viewpoint read between the
     views, from keypoints matched to theirs (a model of one instance, or the recognised
-    instance's views); a turned pose keeps the found one as the next mode."""
+    instance's views); a turned pose keeps the found one as the next mode, and its share of
+    the inliers is the best mode's share."""
     if not state.hypotheses:
         return state
     full = state.trained.full_model
@@ -418,10 +420,13 @@ def keypoints(state: EstimateState) -> EstimateState:
         return state                  # another instance's texture is no evidence
     views = (np.flatnonzero(full.view_instance == names.index(state.instance))
              if len(names) > 1 else None)
-    pose, turned = keypoint_refine(state.hypotheses[0], full, state.image, views=views)
+    pose, share = keypoint_refine(state.hypotheses[0], full, state.image, views=views)
     hyps = state.hypotheses
-    return state.with_hypotheses([pose, *hyps][:state.settings.max_modes] if turned
-                                 else [pose, *hyps[1:]])
+    if share is None:
+        return state.with_hypotheses([pose, *hyps[1:]])
+    # Turned: the texture's evidence for the side is the share the probability reads.
+    return replace(state.with_hypotheses([pose, *hyps][:state.settings.max_modes]),
+                   front_back=share)
 
 
 def outline(state: EstimateState) -> EstimateState:

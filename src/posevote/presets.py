@@ -70,8 +70,9 @@ PRESETS: dict[str, Preset] = {p.name: p for p in (
         chosen_on="COIL-100, the 16 objects of the paper: views at 0, 40, ..., 320 deg "
                   "trained, the training views between them tested",
         script="benchmarks/tune_coil_cv.py",
-        measured="COIL instance protocol 1.81 / 3.15 deg median / mean "
-                 "(docs/results/coil_instance.md); min_score by 5-fold cross-validation "
+        measured="COIL instance protocol 0.69 / 1.62 deg median / mean with the keypoint "
+                 "step, chosen on the 40 development objects (docs/results/coil_instance.md, "
+                 "docs/DEFAULTS.md); min_score by 5-fold cross-validation "
                  "over the 40 development objects: 91% of right-object views kept, 86% of "
                  "other objects' views and background crops rejected "
                  "(benchmarks/rejection_threshold.py, docs/results/rejection_threshold.md)",
@@ -98,7 +99,7 @@ PRESETS: dict[str, Preset] = {p.name: p for p in (
                 "search": SearchOptions(inplane_range_deg=(-30.0, 30.0), inplane_step_deg=5.0,
                                         scale_range=(0.7, 1.3), scale_steps=7,
                                         object_kernel=True, chance_correction=True,
-                                        density_cap=0.5, calibration=(0.735, 4.049, 10.010),
+                                        density_cap=0.5, calibration=(0.523, 4.181, 10.683),
                                         image_levels=(1.0, 0.5), contrast=True),
                 "refine": RefineOptions(rescale=False, local="profile", share_scale=True,
                                         keypoints=True),

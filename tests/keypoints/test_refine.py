@@ -54,11 +54,12 @@ def test_a_half_turned_pose_turns_back_to_its_printed_side(turning, cylinder):
     image, _ = cylinder(np.radians(70.0))
     found = turning.estimate(image).best
     flipped = replace(found, azimuth=float(np.mod(found.azimuth + np.pi, 2 * np.pi)))
-    back, turned = keypoint_refine(flipped, turning.full_model_, image)
-    assert turned and np.degrees(angular_error(back.azimuth, np.radians(70.0))) < 2.5
+    back, share = keypoint_refine(flipped, turning.full_model_, image)
+    assert np.degrees(angular_error(back.azimuth, np.radians(70.0))) < 2.5
+    assert share is not None and 2 / 3 <= share <= 1    # twice the near views' inliers at least
     # The found pose stays where it is, and the score and the box with it.
-    same, turned = keypoint_refine(found, turning.full_model_, image)
-    assert not turned and (same.score, same.box) == (found.score, found.box)
+    same, share = keypoint_refine(found, turning.full_model_, image)
+    assert share is None and (same.score, same.box) == (found.score, found.box)
 
 
 def test_nothing_to_match_leaves_the_pose(turning):
@@ -67,7 +68,7 @@ def test_nothing_to_match_leaves_the_pose(turning):
     pose = turning.set_params(refine__keypoints=False).estimate(np.pad(
         np.eye(64), 32)).best
     turning.set_params(refine__keypoints=True)
-    assert keypoint_refine(pose, found, blank) == (pose, False)
+    assert keypoint_refine(pose, found, blank) == (pose, None)
 
 
 def test_a_model_without_keypoints_is_refused(turning, cylinder):
@@ -77,3 +78,12 @@ def test_a_model_without_keypoints_is_refused(turning, cylinder):
     pose = plain.estimate(image).best or turning.estimate(image).best
     with pytest.raises(ValueError, match="refine=RefineOptions\\(keypoints=True\\)"):
         keypoint_refine(pose, plain.full_model_, image)
+
+
+def test_the_same_image_gives_the_same_pose(turning, cylinder):
+    image, _ = cylinder(np.radians(123.0))
+    found = turning.set_params(refine__keypoints=False).estimate(image).best
+    turning.set_params(refine__keypoints=True)
+    first = keypoint_refine(found, turning.full_model_, image)
+    keypoint_refine(found, turning.full_model_, cylinder(np.radians(10.0))[0])  # RANSAC between
+    assert keypoint_refine(found, turning.full_model_, image) == first

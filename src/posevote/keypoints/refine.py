@@ -181,7 +181,8 @@ def _fit_share(test: NDArray[np.float64], start: NDArray[np.float64], end: NDArr
 
 
 def keypoint_refine(hypothesis: Hypothesis, model: PoseModel, image: NDArray[np.floating],
-                    *, views: NDArray[np.int64] | None = None) -> tuple[Hypothesis, bool]:
+                    *, views: NDArray[np.int64] | None = None
+                    ) -> tuple[Hypothesis, float | None]:
     """The best mode turned to the side its texture shows, its viewpoint read between the
     training views.
 
@@ -202,8 +203,11 @@ def keypoint_refine(hypothesis: Hypothesis, model: PoseModel, image: NDArray[np.
         The mode with its viewpoint from the keypoints (its score, scale,
         in-plane angle and position kept), or ``hypothesis`` where too few
         keypoints match.
-    bool
-        Whether it was turned to a view more than :data:`TURN_ANGLE` away.
+    float or None
+        Where it was turned to a view more than :data:`TURN_ANGLE` away: that
+        view's share of its own and the near views' inliers (the texture's
+        evidence for the side, which the probability reads as the mode's
+        share); None where it was not turned.
 
     Raises
     ------
@@ -217,19 +221,19 @@ def keypoint_refine(hypothesis: Hypothesis, model: PoseModel, image: NDArray[np.
     views = np.arange(model.n_views) if views is None else np.asarray(views, dtype=np.int64)
     xy, desc = test_keypoints(image, hypothesis)
     if len(xy) < MIN_INLIERS or len(views) == 0:
-        return hypothesis, False
+        return hypothesis, None
     inliers = view_inliers(xy, desc, model, views)
     counts = np.array([len(i) for i in inliers])
     best = int(np.argmax(counts))
     if counts[best] < MIN_INLIERS:
-        return hypothesis, False
+        return hypothesis, None
     direction = viewing_direction(model.view_azimuth[views], model.view_elevation[views])
     here = viewing_direction(hypothesis.azimuth, hypothesis.elevation)
     away = np.arccos(np.clip(direction @ here, -1.0, 1.0))
-    turned = bool(away[best] > TURN_ANGLE and counts[best] >= TURN_RATIO * max(
-        counts[away <= NEAR_ANGLE].max(initial=0), 1))
+    near_count = int(counts[away <= NEAR_ANGLE].max(initial=0))
+    turned = bool(away[best] > TURN_ANGLE and counts[best] >= TURN_RATIO * max(near_count, 1))
     if not turned and away[best] > NEAR_ANGLE:
-        return hypothesis, False
+        return hypothesis, None
     # The neighbours: the views nearest the best one (its ring's two, and the rings'
     # over the sphere, on a grid as irregular as a cross-validation fold's); the test view
     # lies toward the one of most inliers that it has moved toward.
@@ -243,7 +247,7 @@ def keypoint_refine(hypothesis: Hypothesis, model: PoseModel, image: NDArray[np.
             break
         t = None
     if t is None and not turned:
-        return hypothesis, False
+        return hypothesis, None
     azimuth = float(model.view_azimuth[views[best]])
     elevation = float(model.view_elevation[views[best]])
     if t is not None:
@@ -252,7 +256,7 @@ def keypoint_refine(hypothesis: Hypothesis, model: PoseModel, image: NDArray[np.
         elevation += t * float(model.view_elevation[views[other]] - elevation)
     moved = replace(hypothesis, azimuth=float(np.mod(azimuth, 2.0 * np.pi)),
                     elevation=elevation)
-    return moved, turned
+    return moved, float(counts[best] / (counts[best] + near_count)) if turned else None
 
 
 def _between(xy: NDArray[np.float64], model: PoseModel, first: NDArray[np.int64],
