@@ -88,7 +88,7 @@ PRESETS: dict[str, Preset] = {p.name: p for p in (
         chosen_on="COIL-100 training views pasted on clutter (self-test and cross-validation "
                   "on the training views)",
         script="benchmarks/coil_instance.py --selftest --clutter / --cv --clutter",
-        measured="COIL instance protocol in clutter 3.79 / 8.78 deg, 77.4% of positions "
+        measured="COIL instance protocol in clutter 3.70 / 7.91 deg, 77.4% of positions "
                  "within 5 px (docs/results/coil_instance_clutter.md); the template "
                  "re-ranking chosen on the development clutter CVs (docs/DEFAULTS.md); "
                  "min_score (on the contrast) by 5-fold cross-validation over the 40 "
