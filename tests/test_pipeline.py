@@ -205,7 +205,7 @@ def test_a_pose_the_keypoints_turn_keeps_the_found_one_next(fitted_estimator, dr
     est = copy.deepcopy(fitted_estimator).set_params(refine__keypoints=True, min_score=0.0)
     image = draw(np.radians(50.0))
     found = est.set_params(refine__keypoints=False).estimate(image)
-    monkeypatch.setattr(pipeline, "keypoint_refine", lambda h, model, image, views=None: (
+    monkeypatch.setattr(pipeline, "keypoint_refine", lambda h, model, image, **kw: (
         replace(h, azimuth=float(np.mod(h.azimuth + np.pi, 2 * np.pi))), 0.9))
     turned = est.set_params(refine__keypoints=True).estimate(image)
     assert turned.best.azimuth == pytest.approx(np.mod(found.best.azimuth + np.pi, 2 * np.pi))
@@ -225,7 +225,7 @@ def test_the_keypoints_compare_one_instances_views_only(synthetic_training, draw
                                            instances=["a"] * len(images) + ["b"] * len(images))
     seen = []
     monkeypatch.setattr(pipeline, "keypoint_refine",
-                        lambda h, model, image, views=None: seen.append(views) or (h, None))
+                        lambda h, model, image, views=None, **kw: seen.append(views) or (h, None))
     est.estimate(draw(np.radians(50.0)))
     assert seen == []                  # several instances, none recognised: nothing compared
     est.set_params(recognition=RecognitionOptions())

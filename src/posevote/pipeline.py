@@ -420,7 +420,9 @@ def keypoints(state: EstimateState) -> EstimateState:
         return state                  # another instance's texture is no evidence
     views = (np.flatnonzero(full.view_instance == names.index(state.instance))
              if len(names) > 1 else None)
-    pose, share = keypoint_refine(state.hypotheses[0], full, state.image, views=views)
+    upright = tuple(state.settings.search.inplane_range_deg) == (0.0, 0.0)
+    pose, share = keypoint_refine(state.hypotheses[0], full, state.image, views=views,
+                                  upright=upright)
     hyps = state.hypotheses
     if share is None:
         return state.with_hypotheses([pose, *hyps[1:]])

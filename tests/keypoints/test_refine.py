@@ -87,3 +87,13 @@ def test_the_same_image_gives_the_same_pose(turning, cylinder):
     first = keypoint_refine(found, turning.full_model_, image)
     keypoint_refine(found, turning.full_model_, cylinder(np.radians(10.0))[0])  # RANSAC between
     assert keypoint_refine(found, turning.full_model_, image) == first
+
+
+def test_an_upright_search_reads_between_views_whatever_turn_the_mode_got(turning, cylinder):
+    image, _ = cylinder(np.radians(50.0))
+    found = turning.set_params(refine__keypoints=False).estimate(image).best
+    turning.set_params(refine__keypoints=True)
+    tilted = replace(found, inplane=np.radians(4.0))         # a refinement's own turn
+    level, _ = keypoint_refine(replace(found, inplane=0.0), turning.full_model_, image)
+    kept, _ = keypoint_refine(tilted, turning.full_model_, image, upright=True)
+    assert kept.azimuth == level.azimuth and kept.inplane == tilted.inplane

@@ -59,10 +59,11 @@ MAX_SCALE = 1.5
 MAX_TURN = math.radians(30.0)
 
 
-def test_keypoints(image: NDArray[np.floating], hypothesis: Hypothesis
-                   ) -> tuple[NDArray[np.float64], NDArray[np.uint8]]:
+def test_keypoints(image: NDArray[np.floating], hypothesis: Hypothesis, *,
+                   upright: bool = False) -> tuple[NDArray[np.float64], NDArray[np.uint8]]:
     """The image's keypoints around the hypothesis's box, in the features' frame (from its
-    position, upright, in reference pixels: its scale and in-plane angle undone)."""
+    position, upright, in reference pixels: its scale and in-plane angle undone; ``upright``:
+    the object is upright, whatever in-plane angle a refinement gave the mode)."""
     x, y, w, h = hypothesis.box
     cu, cv = x + w / 2.0, y + h / 2.0
     half_u, half_v = SEARCH_SHARE * max(w, 1.0), SEARCH_SHARE * max(h, 1.0)
@@ -73,8 +74,9 @@ def test_keypoints(image: NDArray[np.floating], hypothesis: Hypothesis
         return np.zeros((0, 2)), np.zeros((0, 128), dtype=np.uint8)
     xy, desc = detect_keypoints(image[v0:v1, u0:u1])
     xy = xy + (u0, v0)
-    upright = rotate_points(xy - np.asarray(hypothesis.position), -hypothesis.inplane)
-    return upright / hypothesis.scale, desc
+    turned = rotate_points(xy - np.asarray(hypothesis.position),
+                           0.0 if upright else -hypothesis.inplane)
+    return turned / hypothesis.scale, desc
 
 
 def view_inliers(xy: NDArray[np.float64], desc: NDArray[np.uint8], model: PoseModel,
@@ -181,7 +183,7 @@ def _fit_share(test: NDArray[np.float64], start: NDArray[np.float64], end: NDArr
 
 
 def keypoint_refine(hypothesis: Hypothesis, model: PoseModel, image: NDArray[np.floating],
-                    *, views: NDArray[np.int64] | None = None
+                    *, views: NDArray[np.int64] | None = None, upright: bool = False
                     ) -> tuple[Hypothesis, float | None]:
     """The best mode turned to the side its texture shows, its viewpoint read between the
     training views.
@@ -196,6 +198,10 @@ def keypoint_refine(hypothesis: Hypothesis, model: PoseModel, image: NDArray[np.
         The grey test image in [0, 1].
     views : ndarray of int, optional
         The views to compare (default: all; a recognised instance's).
+    upright : bool, optional
+        The search held the object upright (in-plane range 0): the test
+        keypoints are not turned by the in-plane angle a refinement gave the
+        mode (the reading between views is sensitive to a degree of turn).
 
     Returns
     -------
@@ -219,7 +225,7 @@ def keypoint_refine(hypothesis: Hypothesis, model: PoseModel, image: NDArray[np.
                          "is fitted with it; fit (or retrain) with "
                          "refine=RefineOptions(keypoints=True)")
     views = np.arange(model.n_views) if views is None else np.asarray(views, dtype=np.int64)
-    xy, desc = test_keypoints(image, hypothesis)
+    xy, desc = test_keypoints(image, hypothesis, upright=upright)
     if len(xy) < MIN_INLIERS or len(views) == 0:
         return hypothesis, None
     inliers = view_inliers(xy, desc, model, views)
