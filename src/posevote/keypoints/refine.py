@@ -26,6 +26,7 @@ from numpy.typing import NDArray
 from posevote.geometry import angle_difference, rotate_points, viewing_direction
 from posevote.keypoints.model import detect_keypoints
 from posevote.model.density import PoseModel
+from posevote.model.morph import view_neighbours
 from posevote.results import Hypothesis
 
 #: Lowe's ratio: a test keypoint's nearest descriptor in a view is a match when it is nearer
@@ -40,8 +41,6 @@ MIN_INLIERS = 8
 TURN_ANGLE = math.radians(45.0)
 NEAR_ANGLE = math.radians(30.0)
 TURN_RATIO = 2.0
-#: A view's neighbours lie within this many times its nearest view's distance.
-NEIGHBOUR_SPREAD = 2.5
 #: The fewest keypoints seen in the test image and both views that read the viewpoint
 #: between them.
 MIN_SHARED = 4
@@ -240,12 +239,11 @@ def keypoint_refine(hypothesis: Hypothesis, model: PoseModel, image: NDArray[np.
     turned = bool(away[best] > TURN_ANGLE and counts[best] >= TURN_RATIO * max(near_count, 1))
     if not turned and away[best] > NEAR_ANGLE:
         return hypothesis, None
-    # The neighbours: the views nearest the best one (its ring's two, and the rings'
-    # over the sphere, on a grid as irregular as a cross-validation fold's); the test view
-    # lies toward the one of most inliers that it has moved toward.
-    apart = np.arccos(np.clip(direction @ direction[best], -1.0, 1.0))
-    apart[best] = np.inf
-    near = np.flatnonzero(apart <= NEIGHBOUR_SPREAD * apart.min())
+    # The best view's neighbours (its ring's two, and over the sphere its column's), of
+    # which the test view lies toward the one of most inliers that it has moved toward.
+    ring = view_neighbours(model.view_azimuth[views], model.view_elevation[views],
+                           model.view_instance[views])[best]
+    near = ring[ring >= 0]
     t, other = None, best
     for other in near[np.argsort(-counts[near], kind="stable")]:
         t = _between(xy, model, inliers[best], inliers[other])
