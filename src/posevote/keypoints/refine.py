@@ -24,7 +24,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from posevote.geometry import angle_difference, rotate_points, viewing_direction
-from posevote.keypoints.model import detect_keypoints
+from posevote.keypoints.model import DESCRIPTOR_LENGTH, detect_keypoints
 from posevote.model.density import PoseModel
 from posevote.model.morph import view_neighbours
 from posevote.results import Hypothesis
@@ -70,7 +70,7 @@ def test_keypoints(image: NDArray[np.floating], hypothesis: Hypothesis, *,
     u0, u1 = max(0, int(cu - half_u)), min(cols, int(math.ceil(cu + half_u)) + 1)
     v0, v1 = max(0, int(cv - half_v)), min(rows, int(math.ceil(cv + half_v)) + 1)
     if u1 - u0 < 8 or v1 - v0 < 8:
-        return np.zeros((0, 2)), np.zeros((0, 128), dtype=np.uint8)
+        return np.zeros((0, 2)), np.zeros((0, DESCRIPTOR_LENGTH), dtype=np.uint8)
     xy, desc = detect_keypoints(image[v0:v1, u0:u1])
     xy = xy + (u0, v0)
     turned = rotate_points(xy - np.asarray(hypothesis.position),
