@@ -12,7 +12,8 @@ line that made it.
 
 Usage::
 
-    python benchmarks/rendered_sphere.py [--mesh r2d2.urdf] [--images 40] [--clean]
+    python benchmarks/rendered_sphere.py [--mesh r2d2.urdf] [--texture uvmap.png]
+        [--azimuth-step 10] [--images 40] [--clean]
         [--elevations -30,-15,...] [--known-depths] [--jobs 2] [--param NAME=VALUE ...] [--out DIR]
         [--markdown FILE]
 """
@@ -30,6 +31,7 @@ from _markdown import emit  # noqa: E402
 from _settings import parse_settings  # noqa: E402
 
 from posevote.evaluation.sphere import (  # noqa: E402
+    AZIMUTH_STEP_DEG,
     ELEVATIONS_DEG,
     MESHES,
     SphereSetup,
@@ -41,6 +43,9 @@ from posevote.evaluation.sphere import (  # noqa: E402
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--mesh", default="r2d2.urdf", choices=sorted(MESHES))
+    ap.add_argument("--texture", help="an image of pybullet_data laid over the mesh")
+    ap.add_argument("--azimuth-step", type=float, default=AZIMUTH_STEP_DEG,
+                    help="training azimuths' step, degrees")
     ap.add_argument("--images", type=int, default=40)
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--seed", type=int, default=0)
@@ -58,7 +63,8 @@ def main(argv: list[str] | None = None) -> int:
     setup = SphereSetup(mesh=args.mesh, n_images=args.images, seed=args.seed,
                         elevations_deg=tuple(float(e) for e in args.elevations.split(",")),
                         clean=args.clean, params=parse_settings(args.param),
-                        known_depths=args.known_depths)
+                        known_depths=args.known_depths, texture=args.texture,
+                        azimuth_step_deg=args.azimuth_step)
     with tempfile.TemporaryDirectory() as tmp:
         summary = run_sphere(setup, args.out or tmp, jobs=args.jobs,
                              log=lambda m: print(m, file=sys.stderr))

@@ -17,6 +17,16 @@ def test_render_turntable_frames_any_mesh():
     assert not np.array_equal(views[0].mask, views[1].mask)
 
 
+def test_a_texture_is_laid_over_the_mesh():
+    plain, = render_turntable(np.radians([30.0]), size=64, distance=None)
+    laid, = render_turntable(np.radians([30.0]), size=64, distance=None, texture="uvmap.png")
+    np.testing.assert_array_equal(plain.mask, laid.mask)
+    # The yellow duck is nearly one grey; the test image's squares and letters are not.
+    assert laid.image[laid.mask].std() > 2 * plain.image[plain.mask].std()
+    with pytest.raises(FileNotFoundError, match="'nothing.png': no such image"):
+        render_turntable(np.radians([0.0]), size=32, texture="nothing.png")
+
+
 def test_render_turntable_says_when_the_object_is_out_of_view():
     with pytest.raises(ValueError, match="duck_vhacd.urdf: the object is not in view"):
         render_turntable(np.radians([0.0]), size=32, target=(5.0, 5.0, 5.0))

@@ -20,7 +20,8 @@ _SMALL = {"elevations_deg": (0.0, 30.0), "clean": True}
 
 def test_setup_refuses_what_it_cannot_run():
     for bad in ({"mesh": "teapot.urdf"}, {"n_images": 0}, {"elevations_deg": (float("nan"),)},
-                {"elevations_deg": ()}, {"seed": -1}):
+                {"elevations_deg": ()}, {"seed": -1}, {"azimuth_step_deg": 7},
+                {"azimuth_step_deg": 0}, {"texture": "no-such-image.png"}):
         with pytest.raises(ValueError, match=next(iter(bad)).split("_")[0]):
             SphereSetup(**bad)
 
@@ -54,6 +55,17 @@ def test_run_writes_the_report_and_is_reproducible(tmp_path):
         [{k: v for k, v in r.items() if k not in drop} for r in again]
 
 
+def test_a_coarser_grid_of_a_textured_mesh(tmp_path):
+    setup = SphereSetup(mesh="duck_vhacd.urdf", texture="uvmap.png", azimuth_step_deg=90,
+                        n_images=1, **_SMALL)
+    summary = run_sphere(setup, tmp_path)
+    assert summary["n_training_views"] == 2 * 4 and summary["texture"] == "uvmap.png"
+    report = (tmp_path / "report.md").read_text()
+    assert "duck_vhacd.urdf + uvmap.png" in report and "azimuth every 90 deg" in report
+    record = json.loads((tmp_path / "records.jsonl").read_text())
+    assert 0 <= record["elevation_error_deg"] <= 30
+
+
 def test_the_models_in_clutter_are_morphed_over_the_sphere():
     # In clutter each view moves toward its neighbours along its ring and its column;
     # on black (the default preset) the views are not morphed.
@@ -66,7 +78,7 @@ def test_the_models_in_clutter_are_morphed_over_the_sphere():
 
 
 def test_the_true_translation_is_the_mesh_origin():
-    view = sphere._render(np.array([0.6]), 20.0, "r2d2.urdf")[0]
+    view = sphere._render(np.array([0.6]), 20.0, SphereSetup())[0]
     camera = sphere.render_camera()
     as_rendered = PastedView(image=view.image, position=box_centre(view.box), scale=1.0,
                              inplane=0.0, box=tuple(view.box), occluded_fraction=0.0)
@@ -83,9 +95,12 @@ def test_the_true_translation_is_the_mesh_origin():
 
 
 def test_summary_counts_a_missed_image_as_180_degrees_and_no_translation():
-    recs = [{"rotation_deg": 5.0, "translation_pct": 1.0, "detected": True, "seconds": 1.0},
-            {"rotation_deg": 180.0, "translation_pct": None, "detected": False, "seconds": 3.0}]
+    recs = [{"rotation_deg": 5.0, "translation_pct": 1.0, "detected": True, "seconds": 1.0,
+             "elevation_error_deg": 2.0},
+            {"rotation_deg": 180.0, "translation_pct": None, "detected": False, "seconds": 3.0,
+             "elevation_error_deg": None}]
     s = summarize(recs)
+    assert s["elevation_median_deg"] == pytest.approx(46.0)     # a miss counts 90
     assert s["rotation_under_10_pct"] == 50.0 and s["translation_under_2_pct"] == 50.0
     assert s["rotation_mean_deg"] == pytest.approx(92.5) and s["detected_pct"] == 50.0
     assert s["flip_rate_pct"] == 50.0

@@ -8,6 +8,7 @@ protocol (nothing to download).
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -20,7 +21,7 @@ from numpy.typing import NDArray
 #: stands each upright on the turntable.
 MESHES: dict[str, tuple[float, float, float]] = {
     "r2d2.urdf": (0.0, 0.0, 0.0), "duck_vhacd.urdf": (np.pi / 2, 0.0, 0.0),
-    "teddy_vhacd.urdf": (np.pi / 2, 0.0, 0.0)}
+    "teddy_vhacd.urdf": (np.pi / 2, 0.0, 0.0), "jenga/jenga.urdf": (0.0, 0.0, 0.0)}
 
 #: Vertical field of view of the renderer, degrees.
 RENDER_FOV_DEG = 40.0
@@ -54,7 +55,8 @@ def render_focal(size: int) -> float:
 def render_turntable(azimuths: NDArray[np.float64], *, size: int = 128, elevation_deg: float = 20.0,
                      distance: float | None = 0.24, mesh: str = "duck_vhacd.urdf",
                      base_euler: tuple[float, float, float] = (np.pi / 2, 0.0, 0.0),
-                     target: tuple[float, float, float] = (0.0, 0.0, 0.02)) -> list[RenderedView]:
+                     target: tuple[float, float, float] = (0.0, 0.0, 0.02),
+                     texture: str | None = None) -> list[RenderedView]:
     """Render a mesh of ``pybullet_data`` on a turntable at the given azimuths (radians).
 
     Parameters
@@ -78,11 +80,17 @@ def render_turntable(azimuths: NDArray[np.float64], *, size: int = 128, elevatio
         turntable's rotation; the duck's mesh lies on its side without it.
     target : tuple of float, optional
         Point the camera looks at when ``distance`` is given, metres.
+    texture : str, optional
+        An image file, relative to ``pybullet_data``, laid over every link by the mesh's own
+        texture coordinates (its material's colour replaced by white); None keeps the
+        material.
 
     Raises
     ------
     ImportError
         If pybullet is not installed (``pip install 'posevote[demo]'``).
+    FileNotFoundError
+        If ``texture`` is not a file of ``pybullet_data``.
     """
     try:
         import pybullet
@@ -93,6 +101,8 @@ def render_turntable(azimuths: NDArray[np.float64], *, size: int = 128, elevatio
     try:
         pybullet.setAdditionalSearchPath(pybullet_data.getDataPath(), physicsClientId=client)
         body = pybullet.loadURDF(mesh, useFixedBase=True, physicsClientId=client)
+        if texture is not None:
+            _lay_texture(pybullet, client, body, texture)
         rest = pybullet.getQuaternionFromEuler(list(base_euler))
         pivot = np.zeros(3)
         if distance is None:
@@ -138,6 +148,31 @@ def render_turntable(azimuths: NDArray[np.float64], *, size: int = 128, elevatio
         return out
     finally:
         pybullet.disconnect(client)
+
+
+def texture_path(texture: str) -> str:
+    """The file of ``texture``, an image relative to ``pybullet_data``.
+
+    Raises
+    ------
+    FileNotFoundError
+        If there is no such file.
+    """
+    import pybullet_data
+
+    path = os.path.join(pybullet_data.getDataPath(), texture)
+    if not os.path.isfile(path):
+        raise FileNotFoundError(f"texture {texture!r}: no such image in pybullet_data "
+                                f"({pybullet_data.getDataPath()})")
+    return path
+
+
+def _lay_texture(pybullet: Any, client: int, body: int, texture: str) -> None:
+    """Lay the image ``texture`` of ``pybullet_data`` over every link of ``body``."""
+    image = pybullet.loadTexture(texture_path(texture), physicsClientId=client)
+    for link in range(-1, pybullet.getNumJoints(body, physicsClientId=client)):
+        pybullet.changeVisualShape(body, link, textureUniqueId=image,
+                                   rgbaColor=[1.0, 1.0, 1.0, 1.0], physicsClientId=client)
 
 
 def gl_projection(fx: float, fy: float, cx: float, cy: float, size: tuple[int, int], *,

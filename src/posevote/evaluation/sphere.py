@@ -1,9 +1,10 @@
 """The rendered-sphere protocol: the whole viewing sphere, scored in the camera frame.
 
 A mesh of ``pybullet_data`` (r2d2 by default) is rendered with pybullet's CPU
-renderer, framed so that its bounding sphere fits the view. Training: azimuths
+renderer, framed so that its bounding sphere fits the view (with an image of
+``pybullet_data`` laid over it, where the setup names one). Training: azimuths
 every :data:`AZIMUTH_STEP_DEG` at the elevations :data:`ELEVATIONS_DEG`
-(468 views), on black, with their masks and the image and depth of the
+(468 views; the setup may name others), on black, with their masks and the image and depth of the
 mesh's origin (``fit(..., origins=)``, so that ``t_cam_obj`` names the mesh
 origin, as a robot needs, not the box centre), their features morphed
 toward the neighbouring views in azimuth and elevation for the tests in
@@ -22,7 +23,8 @@ The true rotation is the rendered viewpoint with the pasted in-plane angle;
 the true translation is the mesh origin's: its rendered image moved as the
 view was pasted (turned and scaled about the box centre), on the ray at its
 rendered depth divided by the pasted scale. Reported: the geodesic rotation error (median,
-mean, share under 10 and 30 degrees, flip rate: over 135 degrees), the translation error as a share of
+mean, share under 10 and 30 degrees, flip rate: over 135 degrees), the elevation error's
+median, the translation error as a share of
 the true depth, the detection rate (box IoU >= 0.5) and the seconds per
 image, in ``report.md`` and ``summary.json``, one record per test image in
 ``records.jsonl``, and the rotation errors plotted against the test
@@ -55,7 +57,13 @@ from posevote.camera import (
 )
 from posevote.estimator import PoseEstimator
 from posevote.evaluation.metrics import FLIP_DEG, summarize_errors
-from posevote.evaluation.rendering import MESHES, RenderedView, render_focal, render_turntable
+from posevote.evaluation.rendering import (
+    MESHES,
+    RenderedView,
+    render_focal,
+    render_turntable,
+    texture_path,
+)
 from posevote.evaluation.report import row_steps
 from posevote.evaluation.synthetic import PastedView, paste_on_clutter
 from posevote.geometry import (
@@ -103,6 +111,11 @@ class SphereSetup:
         render distance over :data:`SCALE_RANGE`), in metres through the
         camera (:func:`posevote.camera.scale_range_for_depths`), as a robot
         that knows its working distances would.
+    texture : str or None
+        An image of ``pybullet_data`` laid over the mesh by its texture coordinates
+        (:func:`posevote.evaluation.rendering.render_turntable`); None keeps its material.
+    azimuth_step_deg : float
+        Training azimuths are this many degrees apart, at every elevation.
     """
 
     mesh: str = "r2d2.urdf"
@@ -112,6 +125,8 @@ class SphereSetup:
     clean: bool = False
     params: Mapping[str, Any] = field(default_factory=dict)
     known_depths: bool = False
+    texture: str | None = None
+    azimuth_step_deg: float = AZIMUTH_STEP_DEG
 
     def __post_init__(self) -> None:
         if self.mesh not in MESHES:
@@ -125,6 +140,20 @@ class SphereSetup:
         els = self.elevations_deg
         if not (len(els) >= 1 and all(np.isfinite(e) and -80 <= e <= 80 for e in els)):
             raise ValueError(f"elevations_deg must be degrees in [-80, 80], got {els!r}")
+        step = self.azimuth_step_deg
+        if not (isinstance(step, (int, float)) and 1 <= step <= 180 and (360 / step).is_integer()):
+            raise ValueError(f"azimuth_step_deg must divide 360 degrees, from 1 to 180, "
+                             f"got {step!r}")
+        if self.texture is not None:
+            try:
+                texture_path(self.texture)
+            except FileNotFoundError as exc:
+                raise ValueError(str(exc)) from None
+
+    @property
+    def name(self) -> str:
+        """The rendered object: its mesh, and its texture where one is laid over it."""
+        return self.mesh if self.texture is None else f"{self.mesh} + {self.texture}"
 
     @property
     def preset(self) -> str:
@@ -143,12 +172,13 @@ class SphereSetup:
         return [self.seed * 100_000 + i for i in range(self.n_images)]
 
 
-def _render(azimuths: NDArray[np.float64], elevation_deg: float, mesh: str
+def _render(azimuths: NDArray[np.float64], elevation_deg: float, setup: SphereSetup
             ) -> list[RenderedView]:
     # pybullet prints its build time on stdout when it connects.
     with contextlib.redirect_stdout(io.StringIO()):
         return render_turntable(azimuths, size=SIZE, elevation_deg=elevation_deg, distance=None,
-                                mesh=mesh, base_euler=MESHES[mesh])
+                                mesh=setup.mesh, base_euler=MESHES[setup.mesh],
+                                texture=setup.texture)
 
 
 def train(setup: SphereSetup) -> PoseEstimator:
@@ -156,7 +186,7 @@ def train(setup: SphereSetup) -> PoseEstimator:
     the mesh origin's image and depth factor in each view)."""
     views, poses = [], []
     for el in setup.elevations_deg:
-        for v in _render(np.radians(np.arange(0, 360, AZIMUTH_STEP_DEG)), el, setup.mesh):
+        for v in _render(np.radians(np.arange(0.0, 360.0, setup.azimuth_step_deg)), el, setup):
             views.append(v)
             poses.append([v.azimuth, np.radians(el), 0.0])
     camera = render_camera()
@@ -197,7 +227,7 @@ def estimate_record(est: PoseEstimator, item: tuple[SphereSetup, int]) -> dict[s
     els = setup.elevations_deg
     az = float(rng.uniform(0.0, 2 * np.pi))
     el = float(rng.uniform(min(els), max(els)))
-    view = _render(np.array([az]), el, setup.mesh)[0]
+    view = _render(np.array([az]), el, setup)[0]
     if setup.clean:
         pasted = PastedView(image=view.image, position=box_centre(view.box), scale=1.0,
                             inplane=0.0, box=tuple(view.box), occluded_fraction=0.0)
@@ -222,11 +252,13 @@ def estimate_record(est: PoseEstimator, item: tuple[SphereSetup, int]) -> dict[s
                            "inplane_deg": float(np.degrees(pasted.inplane)),
                            "scale": float(pasted.scale), "depth_m": float(depth),
                            "seconds": seconds, "found": result.found, "rotation_deg": 180.0,
-                           "translation_pct": None, "detected": False}
+                           "elevation_error_deg": None, "translation_pct": None,
+                           "detected": False}
     best = result.best
     if best is not None and best.R_cam_obj is not None and best.t_cam_obj is not None:
         rec["rotation_deg"] = float(np.degrees(rotation_angle(
             best.R_cam_obj, rotation_from_pose(az, np.radians(el), pasted.inplane))))
+        rec["elevation_error_deg"] = abs(best.elevation_deg - el)
         rec["translation_pct"] = float(100 * np.linalg.norm(np.array(best.t_cam_obj) - truth_t)
                                        / depth)
         rec["detected"] = bool(box_iou(best.box, pasted.box) >= 0.5)
@@ -239,6 +271,9 @@ def summarize(records: Sequence[dict[str, Any]]) -> dict[str, Any]:
     A flip is a rotation error over ``FLIP_DEG`` (the object taken for its half-turned self).
     """
     rot = np.array([r["rotation_deg"] for r in records], dtype=float)
+    # A missed image's elevation counts as the widest error the training rings allow.
+    ele = np.array([90.0 if r.get("elevation_error_deg") is None else r["elevation_error_deg"]
+                    for r in records], dtype=float)
     tra = np.array([np.inf if r["translation_pct"] is None else r["translation_pct"]
                     for r in records])
     errors = summarize_errors(rot)
@@ -247,6 +282,7 @@ def summarize(records: Sequence[dict[str, Any]]) -> dict[str, Any]:
             "rotation_under_10_pct": float(100 * np.mean(rot < 10)),
             "rotation_under_30_pct": float(100 * np.mean(rot < 30)),
             "flip_rate_pct": errors["flip_rate"],
+            "elevation_median_deg": float(np.median(ele)),
             "translation_median_pct": float(np.median(tra)),
             "translation_under_2_pct": float(100 * np.mean(tra < 2)),
             "detected_pct": float(100 * np.mean([r["detected"] for r in records])),
@@ -259,8 +295,8 @@ def report_text(setup: SphereSetup, summary: dict[str, Any], n_views: int) -> st
         "pasted on 256 x 256 clutter, scale 0.8-1.25, in-plane within 30 deg, 20% hidden"
     told = "; the test depths known (the scales searched from them)" \
         if setup.known_depths else ""
-    return (f"# rendered-sphere: {setup.mesh}\n\n"
-            f"{n_views} training views (azimuth every {AZIMUTH_STEP_DEG} deg at elevations "
+    return (f"# rendered-sphere: {setup.name}\n\n"
+            f"{n_views} training views (azimuth every {setup.azimuth_step_deg:g} deg at elevations "
             f"{', '.join(f'{e:g}' for e in setup.elevations_deg)} deg); {summary['n']} test views "
             f"at random azimuths and elevations, {where}; preset `{setup.preset}`"
             f"{' with the features morphed between neighbouring views' if setup.morphed else ''}"
@@ -269,11 +305,12 @@ def report_text(setup: SphereSetup, summary: dict[str, Any], n_views: int) -> st
             "`t_cam_obj`'s distance from the mesh origin (learnt in each training view).\n\n"
             f"Steps: {row_steps(setup.preset, dict(setup.params))}.\n\n"
             f"| rotation median ° | rotation mean ° | % < 10° | % < 30° | flips % (> {FLIP_DEG:g}°) "
+            "| elevation median ° "
             "| translation median (% of depth) | % translation < 2% | detected % | s / image |\n"
-            "|---|---|---|---|---|---|---|---|---|\n"
+            "|---|---|---|---|---|---|---|---|---|---|\n"
             f"| {summary['rotation_median_deg']:.2f} | {summary['rotation_mean_deg']:.2f} | "
             f"{summary['rotation_under_10_pct']:.1f} | {summary['rotation_under_30_pct']:.1f} | "
-            f"{summary['flip_rate_pct']:.1f} | "
+            f"{summary['flip_rate_pct']:.1f} | {summary['elevation_median_deg']:.2f} | "
             f"{summary['translation_median_pct']:.2f} | {summary['translation_under_2_pct']:.1f} | "
             f"{summary['detected_pct']:.1f} | {summary['seconds_median']:.2f} |\n")
 
@@ -332,7 +369,7 @@ def run_sphere(setup: SphereSetup, out: str | Path, *, jobs: int = 1, scheduler:
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     start = time.perf_counter()
-    log(f"rendering and training {setup.mesh} ({len(setup.elevations_deg)} elevations)")
+    log(f"rendering and training {setup.name} ({len(setup.elevations_deg)} elevations)")
     est = train(setup)
     n_views = len(est.model_.view_azimuth)
     model_path = out / "model.npz"
@@ -349,11 +386,12 @@ def run_sphere(setup: SphereSetup, out: str | Path, *, jobs: int = 1, scheduler:
             progress(len(records), len(seeds))
     summary = summarize(records)
     summary.update(wall_seconds=time.perf_counter() - start, jobs=jobs, mesh=setup.mesh,
+                   texture=setup.texture, azimuth_step_deg=setup.azimuth_step_deg,
                    n_training_views=n_views, elevations_deg=list(setup.elevations_deg),
                    clean=setup.clean, seed=setup.seed, params=dict(setup.params))
     atomic_write_text(out / "records.jsonl", "".join(json.dumps(r) + "\n" for r in records))
     atomic_write_text(out / "summary.json", json.dumps(summary, indent=2, default=str) + "\n")
     atomic_write_text(out / "report.md", report_text(setup, summary, n_views))
     plot_rotation_errors(records, out / "rotation_errors.png",
-                         title=f"rendered sphere, {setup.mesh}, {setup.preset} preset")
+                         title=f"rendered sphere, {setup.name}, {setup.preset} preset")
     return summary
