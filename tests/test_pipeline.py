@@ -205,6 +205,7 @@ def test_a_pose_the_keypoints_turn_keeps_the_found_one_next(fitted_estimator, dr
     est = copy.deepcopy(fitted_estimator).set_params(refine__keypoints=True, min_score=0.0)
     image = draw(np.radians(50.0))
     found = est.set_params(refine__keypoints=False).estimate(image)
+    monkeypatch.setattr(pipeline, "keypoint_locate", lambda h, model, image, **kw: None)
     monkeypatch.setattr(pipeline, "keypoint_refine", lambda h, model, image, **kw: (
         replace(h, azimuth=float(np.mod(h.azimuth + np.pi, 2 * np.pi))), 0.9))
     turned = est.set_params(refine__keypoints=True).estimate(image)
@@ -214,6 +215,23 @@ def test_a_pose_the_keypoints_turn_keeps_the_found_one_next(fitted_estimator, dr
     assert turned.best.probability == pytest.approx(
         calibrated(0.9, turned.best.score, est.search.calibration))
     assert len(turned.modes) <= est.max_modes
+
+
+def test_a_pose_the_keypoints_locate_keeps_the_found_one_next(fitted_estimator, draw,
+                                                               monkeypatch):
+    est = copy.deepcopy(fitted_estimator).set_params(refine__keypoints=True, min_score=0.0)
+    image = draw(np.radians(50.0))
+    found = est.set_params(refine__keypoints=False).estimate(image)
+    monkeypatch.setattr(pipeline, "keypoint_locate", lambda h, model, image, **kw: (
+        replace(h, position=(h.position[0] + 3.0, h.position[1])), 0.8))
+    monkeypatch.setattr(pipeline, "keypoint_refine", lambda h, model, image, **kw: (h, None))
+    located = est.set_params(refine__keypoints=True).estimate(image)
+    assert located.modes[1].position == found.best.position
+    # Polished on the edges from where the texture put it (3 px off: back on the peak), its
+    # side's share the texture's.
+    np.testing.assert_allclose(located.best.position, found.best.position, atol=0.5)
+    assert located.best.probability == pytest.approx(
+        calibrated(0.8, located.best.score, est.search.calibration))
 
 
 def test_the_keypoints_compare_one_instances_views_only(synthetic_training, draw, monkeypatch):

@@ -25,8 +25,10 @@ recognise             ``recognition``                 the instance, and its own 
                                                       (Sec. III-B)
 appearance            ``appearance``                  the box regressed, the nearest view's
                                                       viewpoint
-keypoints             ``refine.keypoints``            the best mode's side and viewpoint from
-                                                      keypoints matched to the views'
+keypoints             ``refine.keypoints``            the object where the texture finds it
+                                                      (the mode's box holding none), its side
+                                                      and viewpoint from keypoints matched to
+                                                      the views'
 outline               ``refine.outline``              each mode's box from its views' outline
 contrast              ``search.contrast``             each mode's score over its frame's
                                                       background spread
@@ -79,7 +81,7 @@ from posevote.inference.probes import ProbeSet
 from posevote.inference.search import probe
 from posevote.inference.setup import SearchOptions, SearchSetup, search_maps
 from posevote.keypoints.model import KeypointCollector
-from posevote.keypoints.refine import keypoint_refine
+from posevote.keypoints.refine import keypoint_locate, keypoint_refine
 from posevote.model.density import origin_offset
 from posevote.model.kernels import K1_CUTOFF, KernelOptions
 from posevote.model.outline import outline_at, outline_box
@@ -89,7 +91,7 @@ from posevote.recognition import RecognitionOptions
 from posevote.recognition.refine import recognize
 from posevote.refinement import RefineOptions
 from posevote.refinement.fitting import FIT_RADIUS_STEPS, find_modes, refine_mode
-from posevote.refinement.local import PoseWeights, local_refine, rescale_mode
+from posevote.refinement.local import PoseWeights, local_refine, polish_pose, rescale_mode
 from posevote.refinement.probability import scored_viewpoints, with_probabilities
 from posevote.refinement.share import share_scale
 from posevote.results import Hypothesis, PoseEstimate
@@ -408,10 +410,11 @@ def appearance(state: EstimateState) -> EstimateState:
 
 
 def keypoints(state: EstimateState) -> EstimateState:
-    """The best mode turned to the side its texture shows and its viewpoint read between the
-    views, from keypoints matched to theirs (a model of one instance, or the recognised
-    instance's views); a turned pose keeps the found one as the next mode, and its share of
-    the inliers is the best mode's share."""
+    """The object placed where the whole image's keypoints find it when the best mode's box
+    holds none of its texture, then turned to the side its texture shows and its viewpoint
+    read between the views, from keypoints matched to theirs (a model of one instance, or
+    the recognised instance's views); a located or turned pose keeps the found one as the
+    next mode, and its share of the texture's evidence is the best mode's share."""
     if not state.hypotheses:
         return state
     full = state.trained.full_model
@@ -421,11 +424,19 @@ def keypoints(state: EstimateState) -> EstimateState:
     views = (np.flatnonzero(full.view_instance == names.index(state.instance))
              if len(names) > 1 else None)
     upright = tuple(state.settings.search.inplane_range_deg) == (0.0, 0.0)
-    pose, share = keypoint_refine(state.hypotheses[0], full, state.image, views=views,
-                                  upright=upright)
     hyps = state.hypotheses
+    located = keypoint_locate(hyps[0], full, state.image, views=views, upright=upright)
+    front_back = state.front_back
+    if located is not None:
+        # The texture found the object away from the mode (kept next); the edges polish it,
+        # and its side's share is the texture's (the profile peaked at the mode).
+        hyps = (polish_pose(located[0], state.trained.model, state.narrow(), turn=not upright,
+                            **score_options(state.setup)), *hyps)
+        front_back = located[1]
+    pose, share = keypoint_refine(hyps[0], full, state.image, views=views, upright=upright)
     if share is None:
-        return state.with_hypotheses([pose, *hyps[1:]])
+        return replace(state.with_hypotheses([pose, *hyps[1:]][:state.settings.max_modes]),
+                       front_back=front_back)
     # Turned: the texture's evidence for the side is the share the probability reads.
     return replace(state.with_hypotheses([pose, *hyps][:state.settings.max_modes]),
                    front_back=share)

@@ -1,11 +1,12 @@
 from dataclasses import replace
 
+import cv2
 import numpy as np
 import pytest
 
 from posevote import PoseEstimator
 from posevote.geometry import angular_error
-from posevote.keypoints.refine import keypoint_refine, share_between
+from posevote.keypoints.refine import keypoint_locate, keypoint_refine, share_between
 
 
 def test_share_between_reads_how_far_the_keypoints_moved():
@@ -97,3 +98,38 @@ def test_an_upright_search_reads_between_views_whatever_turn_the_mode_got(turnin
     level, _ = keypoint_refine(replace(found, inplane=0.0), turning.full_model_, image)
     kept, _ = keypoint_refine(tilted, turning.full_model_, image, upright=True)
     assert kept.azimuth == level.azimuth and kept.inplane == tilted.inplane
+
+
+def test_the_texture_locates_the_object_where_the_mode_missed_it(turning, cylinder):
+    view, box = cylinder(np.radians(70.0))
+    # The object at 1.3 times its size, turned 10 degrees, in the corner of a larger frame.
+    turn = cv2.getRotationMatrix2D((64.0, 64.0), -10.0, 1.3)
+    turn[:, 2] += (200.0, 150.0)
+    frame = cv2.warpAffine(view.astype(np.float32), turn, (400, 320)).astype(np.float64)
+    centre = turn[:, :2] @ (box[:2] + box[2:] / 2) + turn[:, 2]
+    pose = turning.set_params(refine__keypoints=False).estimate(view).best
+    turning.set_params(refine__keypoints=True)
+    away = replace(pose, position=(40.0, 40.0), box=(10.0, 10.0, 60.0, 60.0))
+    found = keypoint_locate(away, turning.full_model_, frame)
+    assert found is not None
+    located, share = found
+    assert 0.5 < share <= 1.0          # the far side's views hold few of the inliers
+    assert np.degrees(angular_error(located.azimuth, np.radians(70.0))) <= 20.0
+    assert located.scale == pytest.approx(1.3 * pose.scale, rel=0.1)
+    assert np.degrees(located.inplane) == pytest.approx(10.0, abs=3.0)
+    # The nearest view is 10 degrees off: its reference point, a few pixels.
+    assert np.hypot(*(np.array(located.position) - centre)) < 12.0
+    # On the object already, the mode stays; a plain frame locates nothing.
+    assert keypoint_locate(replace(away, box=located.box, position=located.position),
+                           turning.full_model_, frame) is None
+    assert keypoint_locate(away, turning.full_model_, np.zeros((320, 400))) is None
+
+
+def test_a_reading_along_the_ring_keeps_the_fits_elevation(turning, cylinder):
+    image, _ = cylinder(np.radians(47.0))
+    found = turning.set_params(refine__keypoints=False).estimate(image).best
+    turning.set_params(refine__keypoints=True)
+    raised = replace(found, elevation=0.1)
+    read, share = keypoint_refine(raised, turning.full_model_, image)
+    assert share is None and read.azimuth != raised.azimuth    # read between the views
+    assert read.elevation == 0.1                               # not snapped to the ring's 0

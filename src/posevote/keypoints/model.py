@@ -23,9 +23,11 @@ MAX_KEYPOINTS = 500
 DESCRIPTOR_LENGTH = 128
 
 
-def detect_keypoints(image: NDArray[np.floating], mask: NDArray[np.bool_] | None = None
+def detect_keypoints(image: NDArray[np.floating], mask: NDArray[np.bool_] | None = None, *,
+                     limit: int = MAX_KEYPOINTS
                      ) -> tuple[NDArray[np.float64], NDArray[np.uint8]]:
-    """SIFT keypoints of a grey image in [0, 1] (only where ``mask`` is True).
+    """SIFT keypoints of a grey image in [0, 1] (only where ``mask`` is True; at most
+    ``limit``, the strongest).
 
     Returns
     -------
@@ -35,7 +37,7 @@ def detect_keypoints(image: NDArray[np.floating], mask: NDArray[np.bool_] | None
         Their descriptors (SIFT's are whole numbers within 0-255).
     """
     grey = np.clip(np.rint(np.asarray(image, dtype=np.float64) * 255.0), 0, 255).astype(np.uint8)
-    sift = cv2.SIFT_create(nfeatures=MAX_KEYPOINTS)  # type: ignore[attr-defined]
+    sift = cv2.SIFT_create(nfeatures=limit)  # type: ignore[attr-defined]
     found, desc = sift.detectAndCompute(
         grey, None if mask is None else mask.astype(np.uint8) * 255)
     if desc is None or not found:

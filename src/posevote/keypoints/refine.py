@@ -23,10 +23,11 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from posevote.geometry import angle_difference, rotate_points, viewing_direction
+from posevote.geometry import angle_difference, box_iou, rotate_points, viewing_direction
 from posevote.keypoints.model import DESCRIPTOR_LENGTH, detect_keypoints
 from posevote.model.density import PoseModel
 from posevote.model.morph import view_neighbours
+from posevote.refinement.fitting import box_from_pose
 from posevote.results import Hypothesis
 
 #: Lowe's ratio: a test keypoint's nearest descriptor in a view is a match when it is nearer
@@ -52,6 +53,8 @@ TRIM_ROUNDS = 3
 #: The test keypoints are those within this share of the box's width and height from its
 #: centre.
 SEARCH_SHARE = 0.55
+#: The most keypoints of a whole test image that look for the object (SIFT's strongest).
+LOCATE_KEYPOINTS = 2000
 #: The similarity onto a view may scale the mode's frame by this factor at most, either way,
 #: and turn it by this angle at most: the mode has placed the object already.
 MAX_SCALE = 1.5
@@ -181,6 +184,123 @@ def _fit_share(test: NDArray[np.float64], start: NDArray[np.float64], end: NDArr
     return t, s
 
 
+def keypoint_locate(hypothesis: Hypothesis, model: PoseModel, image: NDArray[np.floating],
+                    *, views: NDArray[np.int64] | None = None, upright: bool = False
+                    ) -> tuple[Hypothesis, float] | None:
+    """The object where the whole image's keypoints find it, where the best mode's box holds
+    none of its texture.
+
+    The image's keypoints (at most :data:`LOCATE_KEYPOINTS`, SIFT's strongest) are matched
+    to each view's (each view keypoint's nearest test keypoint, Lowe's ratio against the
+    second nearest), and a similarity fitted by RANSAC takes each view's matches onto its
+    keypoints; the view of most inliers places the object (position, scale, in-plane angle
+    from the similarity). It replaces the mode where it holds at least :data:`MIN_INLIERS`,
+    :data:`TURN_RATIO` times the inliers of any view in the mode's own box, and its box
+    overlaps the mode's by IoU under 0.5 (the mode is elsewhere).
+
+    Parameters
+    ----------
+    hypothesis : Hypothesis
+        The best mode (image pixels).
+    model : PoseModel
+        A model with keypoints.
+    image : ndarray, shape (H, W)
+        The grey test image in [0, 1].
+    views : ndarray of int, optional
+        The views to compare (default: all).
+    upright : bool, optional
+        The search held the object upright: a similarity that turns it by more than
+        :data:`MAX_TURN` places nothing.
+
+    Returns
+    -------
+    (Hypothesis, float) or None
+        The located pose at the view's viewpoint (its score the mode's: the caller scores
+        it) and the texture's evidence for its side: the view's share of its own inliers and
+        those of the best view more than :data:`NEAR_ANGLE` from it (the search's profile
+        peaked elsewhere and says nothing of it); None where the keypoints do not place
+        the object elsewhere.
+
+    Raises
+    ------
+    ValueError
+        If the model has no keypoints (fitted without the keypoint step).
+    """
+    _need_keypoints(model)
+    assert model.keypoint_xy is not None and model.keypoint_descriptor is not None
+    assert model.keypoint_view is not None
+    views = np.arange(model.n_views) if views is None else np.asarray(views, dtype=np.int64)
+    xy, desc = detect_keypoints(image, limit=LOCATE_KEYPOINTS)
+    own = np.flatnonzero(np.isin(model.keypoint_view, views))
+    if len(xy) < MIN_INLIERS or len(own) < MIN_INLIERS:
+        return None
+    matcher = cv2.BFMatcher(cv2.NORM_L2)
+    knn = matcher.knnMatch(model.keypoint_descriptor[own].astype(np.float32),
+                           desc.astype(np.float32), k=2)
+    pairs = np.array([(m[0].trainIdx, own[m[0].queryIdx]) for m in knn
+                      if len(m) == 2 and m[0].distance < MATCH_RATIO * m[1].distance],
+                     dtype=np.int64).reshape(-1, 2)
+    best: tuple[int, int, NDArray[Any]] | None = None
+    counts = np.zeros(model.n_views, dtype=np.int64)
+    view_of = model.keypoint_view[pairs[:, 1]]
+    for k in np.unique(view_of):
+        mine = pairs[view_of == k]
+        if len(mine) < MIN_INLIERS:
+            continue
+        tolerance = INLIER_SHARE * float(np.hypot(*model.view_box[k]))
+        # Image pixels onto the view's reference pixels: the tolerance in the view's units
+        # is scaled by the similarity's own scale after the fit.
+        fitted, inlier = cv2.estimateAffinePartial2D(
+            model.keypoint_xy[mine[:, 1]].astype(np.float32),
+            xy[mine[:, 0]].astype(np.float32), method=cv2.RANSAC,
+            ransacReprojThreshold=tolerance * _median_scale(xy[mine[:, 0]],
+                                                            model.keypoint_xy[mine[:, 1]]),
+            maxIters=500, refineIters=5)
+        if fitted is None:
+            continue
+        count = counts[k] = int(inlier.sum())
+        if count >= MIN_INLIERS and (best is None or count > best[1]):
+            best = (int(k), count, fitted)
+    if best is None:
+        return None
+    k, count, fitted = best
+    scale = math.hypot(fitted[0, 0], fitted[1, 0])
+    inplane = math.atan2(fitted[1, 0], fitted[0, 0])
+    if scale <= 0 or (upright and abs(inplane) > MAX_TURN):
+        return None
+    position = np.asarray(fitted[:, 2], dtype=np.float64)
+    located = replace(hypothesis, azimuth=float(model.view_azimuth[k]),
+                      elevation=float(model.view_elevation[k]), inplane=float(inplane),
+                      scale=float(scale), position=(float(position[0]), float(position[1])),
+                      box=box_from_pose(position, model.view_box[k] * scale, inplane),
+                      refined=False)
+    if box_iou(located.box, hypothesis.box) >= 0.5:
+        return None
+    here = view_inliers(*test_keypoints(image, hypothesis, upright=upright), model, views)
+    if count < TURN_RATIO * max(max((len(i) for i in here), default=0), 1):
+        return None
+    direction = viewing_direction(model.view_azimuth, model.view_elevation)
+    far = direction @ direction[k] < math.cos(NEAR_ANGLE)
+    return located, count / (count + int(counts[far].max(initial=0)))
+
+
+def _need_keypoints(model: PoseModel) -> None:
+    """Refuse a model fitted without the keypoint step (it holds no keypoints)."""
+    if model.keypoint_xy is None:
+        raise ValueError("the keypoint step needs the views' keypoints, learnt when the model "
+                         "is fitted with it; fit (or retrain) with "
+                         "refine=RefineOptions(keypoints=True)")
+
+
+def _median_scale(test: NDArray[np.float64], view: NDArray[np.float64]) -> float:
+    """The median ratio of the test keypoints' distances from their centroid to the view's:
+    the similarity's scale, roughly, before it is fitted."""
+    t = np.hypot(*(test - np.median(test, axis=0)).T)
+    v = np.hypot(*(view - np.median(view, axis=0)).T)
+    ok = v > 1e-9
+    return float(np.median(t[ok] / v[ok])) if ok.any() else 1.0
+
+
 def keypoint_refine(hypothesis: Hypothesis, model: PoseModel, image: NDArray[np.floating],
                     *, views: NDArray[np.int64] | None = None, upright: bool = False
                     ) -> tuple[Hypothesis, float | None]:
@@ -219,10 +339,7 @@ def keypoint_refine(hypothesis: Hypothesis, model: PoseModel, image: NDArray[np.
     ValueError
         If the model has no keypoints (fitted without the keypoint step).
     """
-    if model.keypoint_xy is None:
-        raise ValueError("the keypoint step needs the views' keypoints, learnt when the model "
-                         "is fitted with it; fit (or retrain) with "
-                         "refine=RefineOptions(keypoints=True)")
+    _need_keypoints(model)
     views = np.arange(model.n_views) if views is None else np.asarray(views, dtype=np.int64)
     xy, desc = test_keypoints(image, hypothesis, upright=upright)
     if len(xy) < MIN_INLIERS or len(views) == 0:
@@ -256,8 +373,16 @@ def keypoint_refine(hypothesis: Hypothesis, model: PoseModel, image: NDArray[np.
     elevation = float(model.view_elevation[views[best]])
     if t is not None:
         t = min(t, 1.0)
-        azimuth += t * float(angle_difference(model.view_azimuth[views[other]], azimuth))
-        elevation += t * float(model.view_elevation[views[other]] - elevation)
+        turn = float(angle_difference(model.view_azimuth[views[other]], azimuth))
+        rise = float(model.view_elevation[views[other]] - elevation)
+        azimuth += t * turn
+        elevation += t * rise
+        if not turned:
+            # Read along a ring, the fit's elevation stands; along a column, its azimuth.
+            if abs(rise) < 1e-6:
+                elevation = hypothesis.elevation
+            elif abs(turn) < 1e-6:
+                azimuth = hypothesis.azimuth
     moved = replace(hypothesis, azimuth=float(np.mod(azimuth, 2.0 * np.pi)),
                     elevation=elevation)
     return moved, float(counts[best] / (counts[best] + near_count)) if turned else None
