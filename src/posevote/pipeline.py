@@ -411,10 +411,11 @@ def appearance(state: EstimateState) -> EstimateState:
 
 def keypoints(state: EstimateState) -> EstimateState:
     """The object placed where the whole image's keypoints find it when the best mode's box
-    holds none of its texture, then turned to the side its texture shows and its viewpoint
-    read between the views, from keypoints matched to theirs (a model of one instance, or
-    the recognised instance's views); a located or turned pose keeps the found one as the
-    next mode, and its share of the texture's evidence is the best mode's share."""
+    holds none of its texture (a model of one instance), then turned to the side its
+    texture shows and its viewpoint read between the views, from keypoints matched to
+    theirs (a model of one instance, or the recognised instance's views); a located or
+    turned pose keeps the found one as the next mode, and its share of the texture's
+    evidence is the best mode's share."""
     if not state.hypotheses:
         return state
     full = state.trained.full_model
@@ -425,7 +426,9 @@ def keypoints(state: EstimateState) -> EstimateState:
              if len(names) > 1 else None)
     upright = tuple(state.settings.search.inplane_range_deg) == (0.0, 0.0)
     hyps = state.hypotheses
-    located = keypoint_locate(hyps[0], full, state.image, views=views, upright=upright)
+    # A recognised instance was recognised at the mode's box: its place is the mode's.
+    located = (keypoint_locate(hyps[0], full, state.image, upright=upright)
+               if len(names) == 1 else None)
     front_back = state.front_back
     if located is not None:
         # The texture found the object away from the mode (kept next); the edges polish it,
