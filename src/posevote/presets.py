@@ -70,7 +70,7 @@ PRESETS: dict[str, Preset] = {p.name: p for p in (
         chosen_on="COIL-100, the 16 objects of the paper: views at 0, 40, ..., 320 deg "
                   "trained, the training views between them tested",
         script="benchmarks/tune_coil_cv.py",
-        measured="COIL instance protocol 0.69 / 1.54 deg median / mean with the keypoint "
+        measured="COIL instance protocol 0.69 / 1.33 deg median / mean with the keypoint "
                  "step, chosen on the 40 development objects (docs/results/coil_instance.md, "
                  "docs/DEFAULTS.md); min_score by 5-fold cross-validation "
                  "over the 40 development objects: 91% of right-object views kept, 86% of "
@@ -88,7 +88,7 @@ PRESETS: dict[str, Preset] = {p.name: p for p in (
         chosen_on="COIL-100 training views pasted on clutter (self-test and cross-validation "
                   "on the training views)",
         script="benchmarks/coil_instance.py --selftest --clutter / --cv --clutter",
-        measured="COIL instance protocol in clutter 3.70 / 7.93 deg, 77.4% of positions "
+        measured="COIL instance protocol in clutter 3.64 / 6.83 deg, 78.8% of positions "
                  "within 5 px (docs/results/coil_instance_clutter.md); the template "
                  "re-ranking chosen on the development clutter CVs (docs/DEFAULTS.md); "
                  "min_score (on the contrast) by 5-fold cross-validation over the 40 "
@@ -99,7 +99,7 @@ PRESETS: dict[str, Preset] = {p.name: p for p in (
                 "search": SearchOptions(inplane_range_deg=(-30.0, 30.0), inplane_step_deg=5.0,
                                         scale_range=(0.7, 1.3), scale_steps=7,
                                         object_kernel=True, chance_correction=True,
-                                        density_cap=0.5, calibration=(0.523, 4.181, 10.683),
+                                        density_cap=0.5, calibration=(0.501, 4.074, 10.522),
                                         image_levels=(1.0, 0.5), contrast=True),
                 "refine": RefineOptions(rescale=False, local="profile", share_scale=True,
                                         keypoints=True),
