@@ -185,15 +185,14 @@ def _fit_share(test: NDArray[np.float64], start: NDArray[np.float64], end: NDArr
 
 
 def keypoint_locate(hypothesis: Hypothesis, model: PoseModel, image: NDArray[np.floating],
-                    *, views: NDArray[np.int64] | None = None, upright: bool = False
-                    ) -> tuple[Hypothesis, float] | None:
+                    *, upright: bool = False) -> tuple[Hypothesis, float] | None:
     """The object where the whole image's keypoints find it, where the best mode's box holds
     none of its texture.
 
     The image's keypoints (at most :data:`LOCATE_KEYPOINTS`, SIFT's strongest) are matched
     to each view's (each view keypoint's nearest test keypoint, Lowe's ratio against the
-    second nearest), and a similarity fitted by RANSAC takes each view's matches onto its
-    keypoints; the view of most inliers places the object (position, scale, in-plane angle
+    second nearest), and a similarity fitted by RANSAC takes each view's matched keypoints
+    onto the image; the view of most inliers places the object (position, scale, in-plane angle
     from the similarity). It replaces the mode where it holds at least :data:`MIN_INLIERS`,
     :data:`TURN_RATIO` times the inliers of any view in the mode's own box, and its box
     overlaps the mode's by IoU under 0.5 (the mode is elsewhere).
@@ -203,11 +202,9 @@ def keypoint_locate(hypothesis: Hypothesis, model: PoseModel, image: NDArray[np.
     hypothesis : Hypothesis
         The best mode (image pixels).
     model : PoseModel
-        A model with keypoints.
+        A model of one instance, with keypoints.
     image : ndarray, shape (H, W)
         The grey test image in [0, 1].
-    views : ndarray of int, optional
-        The views to compare (default: all).
     upright : bool, optional
         The search held the object upright: a similarity that turns it by more than
         :data:`MAX_TURN` places nothing.
@@ -229,15 +226,13 @@ def keypoint_locate(hypothesis: Hypothesis, model: PoseModel, image: NDArray[np.
     _need_keypoints(model)
     assert model.keypoint_xy is not None and model.keypoint_descriptor is not None
     assert model.keypoint_view is not None
-    views = np.arange(model.n_views) if views is None else np.asarray(views, dtype=np.int64)
     xy, desc = detect_keypoints(image, limit=LOCATE_KEYPOINTS)
-    own = np.flatnonzero(np.isin(model.keypoint_view, views))
-    if len(xy) < MIN_INLIERS or len(own) < MIN_INLIERS:
+    if len(xy) < MIN_INLIERS or len(model.keypoint_view) < MIN_INLIERS:
         return None
     matcher = cv2.BFMatcher(cv2.NORM_L2)
-    knn = matcher.knnMatch(model.keypoint_descriptor[own].astype(np.float32),
+    knn = matcher.knnMatch(model.keypoint_descriptor.astype(np.float32),
                            desc.astype(np.float32), k=2)
-    pairs = np.array([(m[0].trainIdx, own[m[0].queryIdx]) for m in knn
+    pairs = np.array([(m[0].trainIdx, m[0].queryIdx) for m in knn
                       if len(m) == 2 and m[0].distance < MATCH_RATIO * m[1].distance],
                      dtype=np.int64).reshape(-1, 2)
     best: tuple[int, int, NDArray[Any]] | None = None
@@ -276,7 +271,8 @@ def keypoint_locate(hypothesis: Hypothesis, model: PoseModel, image: NDArray[np.
                       refined=False)
     if box_iou(located.box, hypothesis.box) >= 0.5:
         return None
-    here = view_inliers(*test_keypoints(image, hypothesis, upright=upright), model, views)
+    here = view_inliers(*test_keypoints(image, hypothesis, upright=upright), model,
+                        np.arange(model.n_views))
     if count < TURN_RATIO * max(max((len(i) for i in here), default=0), 1):
         return None
     direction = viewing_direction(model.view_azimuth, model.view_elevation)
