@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from posevote.features import EdgeFeatures
+from posevote.geometry import rotate_points
 from posevote.inference.voting import accumulate_votes, blur_taps
 from posevote.model.kernels import orientation_kernel
 from posevote.scoring.maps import (
@@ -20,7 +21,7 @@ from posevote.scoring.maps import (
     saturate_reference,
     smooth,
 )
-from posevote.scoring.score import density_at
+from posevote.scoring.score import density_at, gather_score, gather_score_reference
 
 
 def test_chance_width_subtracts_the_local_chance_level():
@@ -112,11 +113,27 @@ def test_a_region_holds_the_whole_images_maps_there(sigma, region):
     u0, v0, u1, v1 = (int(b) for b in part.window)
     assert (u0, v0, u1, v1) == (max(region[0], 0), max(region[1], 0), min(region[2], 129),
                                 min(region[3], 109))
-    np.testing.assert_allclose(part.density[:, v0:v1 + 1, u0:u1 + 1],
-                               whole.density[:, v0:v1 + 1, u0:u1 + 1], rtol=0, atol=1e-6)
-    outside = np.ones(shape, dtype=bool)
-    outside[v0:v1 + 1, u0:u1 + 1] = False
-    assert not part.density[:, outside].any()
+    # Only the region is tabulated, from its origin.
+    assert part.origin == (u0, v0)
+    assert part.density.shape == (whole.density.shape[0], v1 - v0 + 1, u1 - u0 + 1)
+    np.testing.assert_allclose(part.density, whole.density[:, v0:v1 + 1, u0:u1 + 1],
+                               rtol=0, atol=1e-6)
+    # Read through the frame, a pose scores the same inside and nothing outside.
+    xy, theta = rng.uniform(-6, 6, (40, 2)), rng.uniform(0, np.pi, 40)
+    w = np.full(40, 1.0 / 40)
+    for tu, tv in ((0.5 * (u0 + u1), 0.5 * (v0 + v1)), (u0 + 3.3, v1 - 2.7)):
+        args = (xy, theta, w, 0.3, 0.9, tu, tv)
+        assert gather_score(part.density, part.frame, *args) == pytest.approx(
+            gather_score_reference(part, *args), abs=1e-6)
+        landed = 0.9 * rotate_points(xy, 0.3) + [tu, tv]
+        same = np.all((landed >= [u0, v0]) & (landed < [u1, v1]), axis=1)
+        assert gather_score(part.density, part.frame, xy, theta, w * same, 0.3, 0.9, tu, tv) \
+            == pytest.approx(gather_score(whole.density, whole.frame, xy, theta, w * same, 0.3,
+                                          0.9, tu, tv), abs=1e-6)
+    if part.density.shape == whole.density.shape:
+        return                                # the whole image: restricted as any
+    with pytest.raises(ValueError, match="region only"):
+        restrict_maps(part, np.array([u0, v0], dtype=float), np.array([u1, v1], dtype=float))
     # The chance level is still the whole image's, from the points alone.
     assert part.chance == pytest.approx(whole.chance, rel=1e-6)
     assert len(part.vote_weight) == 0

@@ -56,6 +56,9 @@ class TestMaps:
     window : (float, float, float, float)
         ``(u_lo, v_lo, u_hi, v_hi)``, pixels: phi is read where
         ``u_lo <= u < u_hi`` and ``v_lo <= v < v_hi``, and is 0 elsewhere.
+    origin : (int, int)
+        The pixel ``(u, v)`` of ``density``'s first cell where only a region is tabulated
+        (narrow maps: one cell a pixel); ``(0, 0)`` for the whole image.
     lut : ndarray
         Orientation kernel tabulated over ``[0, pi/2]``, 0 below the vote cutoff: a
         training voter pairs with the test voters in the run of orientations where
@@ -80,13 +83,18 @@ class TestMaps:
     lut: NDArray[np.float64]
     position_sigma: float
     chance: float = 0.0
+    origin: tuple[int, int] = (0, 0)
 
     @property
     def frame(self) -> NDArray[np.float64]:
-        """The grid as the compiled readers take it: the window in grid units, then ``off``
-        and ``inv``, pixel ``p`` lying at grid position ``(p - off) * inv``."""
+        """The grid as the compiled readers take it: the window in grid units, then
+        ``off_u``, ``inv`` and ``off_v``, pixel ``(u, v)`` lying at grid position
+        ``((u - off_u) * inv, (v - off_v) * inv)``."""
         off, inv = 0.5 * (self.grid - 1), 1.0 / self.grid
-        return np.array([(bound - off) * inv for bound in self.window] + [off, inv])
+        off_u, off_v = off + self.origin[0], off + self.origin[1]
+        u_lo, v_lo, u_hi, v_hi = self.window
+        return np.array([(u_lo - off_u) * inv, (v_lo - off_v) * inv, (u_hi - off_u) * inv,
+                         (v_hi - off_v) * inv, off_u, inv, off_v])
 
 
 def prepare_test(features: EdgeFeatures, shape: tuple[int, int], *, position_sigma: float,
@@ -131,7 +139,7 @@ def prepare_test(features: EdgeFeatures, shape: tuple[int, int], *, position_sig
     region : (int, int, int, int), optional
         ``(u_lo, v_lo, u_hi, v_hi)``, pixels (inclusive): tabulate phi there
         only, with the whole image's values, and read it there only (the
-        maps' window; 0 elsewhere). For a polish that cannot leave it, at a
+        maps' window and ``origin``; 0 elsewhere). For a polish that cannot leave it, at a
         fraction of the work. Narrow kernels (one cell a pixel) without
         ``density_cap`` or ``chance_width`` only; the chance level stays the
         whole image's (:func:`chance_of_points`).
@@ -184,8 +192,8 @@ def prepare_test(features: EdgeFeatures, shape: tuple[int, int], *, position_sig
     if region is not None:
         u0, v0, u1, v1 = region
         # No cap: the gain alone, in single precision as _saturate applies it.
-        density[:, v0:v1 + 1, u0:u1 + 1] *= np.float32(gain)
-        return replace(maps, window=(float(u0), float(v0), float(u1), float(v1)),
+        density *= np.float32(gain)
+        return replace(maps, window=(float(u0), float(v0), float(u1), float(v1)), origin=(u0, v0),
                        chance=chance_of_points(features.xy, features.theta, weight, centres,
                                                orientation_kappa, shape, position_sigma) * gain)
     mean = np.empty(density.shape[1:], dtype=np.float32)
@@ -437,12 +445,13 @@ def orientation_planes(xy: NDArray[np.float64], theta: NDArray[np.float64],
     one buffer the planes share (the same planes as :func:`blurred_points` of the
     strengths; writing all the planes point by point missed the cache on large grids).
     With a ``region`` (``(u_lo, v_lo, u_hi, v_hi)`` inside the image, inclusive; narrow
-    kernels only) the planes hold the same values there and 0 elsewhere: the points within
-    the kernel's reach of it are blurred on a tile around it.
+    kernels only) the planes cover the region only, with the whole image's values there:
+    the points within the kernel's reach of it are blurred on a tile around it.
 
     Returns
     -------
     ndarray, shape (len(centres), GH, GW), float32
+        With a region: shape (len(centres), v_hi - v_lo + 1, u_hi - u_lo + 1).
     """
     k, gh, gw = map_grid(sigma, shape)
     if region is not None:
@@ -491,9 +500,7 @@ def _region_planes(xy: NDArray[np.float64], theta: NDArray[np.float64],
     tile = orientation_planes(np.stack([cols[near] - tu0, rows[near] - tv0], axis=1).astype(
         np.float64), np.asarray(theta)[near], np.asarray(weight)[near], centres, kappa,
         (tv1 - tv0 + 1, tu1 - tu0 + 1), sigma)
-    out = np.zeros((len(centres), h, w), dtype=np.float32)
-    out[:, v0:v1 + 1, u0:u1 + 1] = tile[:, v0 - tv0:v1 - tv0 + 1, u0 - tu0:u1 - tu0 + 1]
-    return out
+    return np.ascontiguousarray(tile[:, v0 - tv0:v1 - tv0 + 1, u0 - tu0:u1 - tu0 + 1])
 
 
 def chance_of_points(xy: NDArray[np.float64], theta: NDArray[np.float64],
@@ -624,7 +631,15 @@ def restrict_maps(maps: TestMaps, lo: NDArray[np.float64], hi: NDArray[np.float6
     Returns
     -------
     TestMaps
+
+    Raises
+    ------
+    ValueError
+        If ``maps`` tabulate a region only (:func:`prepare_test`).
     """
+    if maps.density.shape[1:] != map_grid(maps.position_sigma, maps.shape)[1:]:
+        raise ValueError("restrict_maps: the maps tabulate a region only; prepare the whole "
+                         "image's")
     inside = np.all((maps.xy >= lo) & (maps.xy <= hi), axis=1)
     voting = np.all((maps.vote_xy >= lo) & (maps.vote_xy <= hi), axis=1)
     u_lo, v_lo, u_hi, v_hi = maps.window

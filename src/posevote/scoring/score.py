@@ -83,10 +83,10 @@ def gather_score(density, frame, train_xy, train_theta, train_w, alpha, scale, t
     """
     n_bins = density.shape[0]
     bin_width = np.pi / n_bins
-    off, inv = frame[4], frame[5]
-    # The pose straight to grid units: a pixel's position p is at (p - off) * inv.
+    inv = frame[5]
+    # The pose straight to grid units: a pixel (u, v) is at ((u - off_u) inv, (v - off_v) inv).
     ca, sa = scale * inv * np.cos(alpha), scale * inv * np.sin(alpha)
-    gu, gv = (tu - off) * inv, (tv - off) * inv
+    gu, gv = (tu - frame[4]) * inv, (tv - frame[6]) * inv
     total = 0.0
     for i in range(train_xy.shape[0]):
         wi = train_w[i]
@@ -140,9 +140,9 @@ def place_features(frame, n_bins, xy, theta, alpha, scale, u0, v0, px, py, obins
     The pose's shifts (:func:`shifted_score`) then skip the turn and the bins.
     """
     bin_width = np.pi / n_bins
-    off, inv = frame[4], frame[5]
+    inv = frame[5]
     ca, sa = scale * inv * np.cos(alpha), scale * inv * np.sin(alpha)
-    gu, gv = (u0 - off) * inv, (v0 - off) * inv
+    gu, gv = (u0 - frame[4]) * inv, (v0 - frame[6]) * inv
     for i in range(xy.shape[0]):
         px[i] = ca * xy[i, 0] - sa * xy[i, 1] + gu
         py[i] = sa * xy[i, 0] + ca * xy[i, 1] + gv
@@ -195,8 +195,8 @@ def density_at(maps: TestMaps, xy: NDArray[np.float64], theta: NDArray[np.float6
     ft = f - np.floor(f)
     x, y = xy[:, 0], xy[:, 1]
     inside = (x >= u_lo) & (y >= v_lo) & (x < u_hi) & (y < v_hi)
-    gx = np.maximum((x - 0.5 * (k - 1)) / k, 0.0)
-    gy = np.maximum((y - 0.5 * (k - 1)) / k, 0.0)
+    gx = np.maximum((x - 0.5 * (k - 1) - maps.origin[0]) / k, 0.0)
+    gy = np.maximum((y - 0.5 * (k - 1) - maps.origin[1]) / k, 0.0)
     d = maps.density.astype(np.float64)
     v0 = map_coordinates(d, [b0, gy, gx], order=1, mode="nearest")
     v1 = map_coordinates(d, [b1, gy, gx], order=1, mode="nearest")
