@@ -133,3 +133,22 @@ def test_a_reading_along_the_ring_keeps_the_fits_elevation(turning, cylinder):
     read, share = keypoint_refine(raised, turning.full_model_, image)
     assert share is None and read.azimuth != raised.azimuth    # read between the views
     assert read.elevation == 0.1                               # not snapped to the ring's 0
+
+
+def test_a_larger_frame_is_given_keypoints_by_its_area(turning, cylinder, monkeypatch):
+    import posevote.keypoints.refine as refine
+
+    asked = []
+
+    def detect(image, mask=None, *, limit):
+        asked.append(limit)
+        return np.zeros((0, 2)), np.zeros((0, 128), dtype=np.uint8)
+
+    monkeypatch.setattr(refine, "detect_keypoints", detect)
+    view, _ = cylinder(np.radians(70.0))
+    pose = turning.set_params(refine__keypoints=False).estimate(view).best
+    turning.set_params(refine__keypoints=True)
+    for shape in ((320, 400), (480, 640), (720, 1280)):
+        assert keypoint_locate(pose, turning.full_model_, np.zeros(shape)) is None
+    # A 640 x 480 frame's number at most, and as many per its area in a larger one.
+    assert asked == [refine.LOCATE_KEYPOINTS] * 2 + [3 * refine.LOCATE_KEYPOINTS]

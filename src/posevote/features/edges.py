@@ -210,7 +210,13 @@ def frame_budget(options: EdgeOptions, shape: tuple[int, ...]) -> int | None:
     budget = options.max_test_features
     if budget is None:
         return None
-    return max(budget, int(round(budget * shape[0] * shape[1] / BUDGET_AREA)))
+    return area_budget(budget, shape)
+
+
+def area_budget(count: int, shape: tuple[int, ...]) -> int:
+    """``count`` per :data:`BUDGET_AREA` of an image of ``shape`` (H, W), never fewer than
+    ``count``: what a 640 x 480 frame is given, at the same density on a larger one."""
+    return max(count, int(round(count * shape[0] * shape[1] / BUDGET_AREA)))
 
 
 def extract_edges(image: NDArray, options: EdgeOptions, *, training: bool,

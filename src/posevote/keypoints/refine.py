@@ -23,6 +23,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from posevote.features.edges import area_budget
 from posevote.geometry import angle_difference, box_iou, rotate_points, viewing_direction
 from posevote.keypoints.model import DESCRIPTOR_LENGTH, detect_keypoints
 from posevote.model.density import PoseModel
@@ -53,7 +54,9 @@ TRIM_ROUNDS = 3
 #: The test keypoints are those within this share of the box's width and height from its
 #: centre.
 SEARCH_SHARE = 0.55
-#: The most keypoints of a whole test image that look for the object (SIFT's strongest).
+#: The most keypoints of a whole 640 x 480 test image that look for the object (SIFT's
+#: strongest); as many per its area in a larger one (a cap per image lost a small object's
+#: keypoints to a 1280 x 720 frame's clutter: docs/history/KEYPOINTS.md).
 LOCATE_KEYPOINTS = 2000
 #: The similarity onto a view may scale the mode's frame by this factor at most, either way,
 #: and turn it by this angle at most: the mode has placed the object already.
@@ -189,13 +192,14 @@ def keypoint_locate(hypothesis: Hypothesis, model: PoseModel, image: NDArray[np.
     """The object where the whole image's keypoints find it, where the best mode's box holds
     none of its texture.
 
-    The image's keypoints (at most :data:`LOCATE_KEYPOINTS`, SIFT's strongest) are matched
-    to each view's (each view keypoint's nearest test keypoint, Lowe's ratio against the
-    second nearest), and a similarity fitted by RANSAC takes each view's matched keypoints
-    onto the image; the view of most inliers places the object (position, scale, in-plane angle
-    from the similarity). It replaces the mode where it holds at least :data:`MIN_INLIERS`,
-    :data:`TURN_RATIO` times the inliers of any view in the mode's own box, and its box
-    overlaps the mode's by IoU under 0.5 (the mode is elsewhere).
+    The image's keypoints (at most :data:`LOCATE_KEYPOINTS` per 640 x 480 of it, SIFT's
+    strongest) are matched to each view's (each view keypoint's nearest test keypoint,
+    Lowe's ratio against the second nearest), and a similarity fitted by RANSAC takes each
+    view's matched keypoints onto the image; the view of most inliers places the object
+    (position, scale, in-plane angle from the similarity). It replaces the mode where it
+    holds at least :data:`MIN_INLIERS`, :data:`TURN_RATIO` times the inliers of any view in
+    the mode's own box, and its box overlaps the mode's by IoU under 0.5 (the mode is
+    elsewhere).
 
     Parameters
     ----------
@@ -226,7 +230,7 @@ def keypoint_locate(hypothesis: Hypothesis, model: PoseModel, image: NDArray[np.
     _need_keypoints(model)
     assert model.keypoint_xy is not None and model.keypoint_descriptor is not None
     assert model.keypoint_view is not None
-    xy, desc = detect_keypoints(image, limit=LOCATE_KEYPOINTS)
+    xy, desc = detect_keypoints(image, limit=area_budget(LOCATE_KEYPOINTS, image.shape))
     if len(xy) < MIN_INLIERS or len(model.keypoint_view) < MIN_INLIERS:
         return None
     matcher = cv2.BFMatcher(cv2.NORM_L2)
