@@ -57,7 +57,7 @@ class Preset:
 # most similar training car's model re-estimating near the category's mode.
 _EPFL_SEARCH = SearchOptions(viewpoint_step_deg=10.0, scale_range=(0.7, 1.45), scale_steps=6,
                              object_kernel=True, chance_correction=True, density_cap=0.6,
-                             max_search_features=1000, calibration=(0.475, 6.409, 12.042))
+                             max_search_features=1000, calibration=(0.503, 4.009, 7.664))
 
 # Each preset's ``SearchOptions.calibration``: the logistic fit of "right" (within 30 deg,
 # box found) on its development estimates, wrong objects and empty frames among them
@@ -99,7 +99,7 @@ PRESETS: dict[str, Preset] = {p.name: p for p in (
                 "search": SearchOptions(inplane_range_deg=(-30.0, 30.0), inplane_step_deg=5.0,
                                         scale_range=(0.7, 1.3), scale_steps=7,
                                         object_kernel=True, chance_correction=True,
-                                        density_cap=0.5, calibration=(0.501, 4.074, 10.522),
+                                        density_cap=0.5, calibration=(0.311, 0.577, 2.760),
                                         image_levels=(1.0, 0.5), contrast=True),
                 "refine": RefineOptions(rescale=False, local="profile", share_scale=True,
                                         keypoints=True),
@@ -116,7 +116,7 @@ PRESETS: dict[str, Preset] = {p.name: p for p in (
         params={"min_score": 0.138, "edges": EdgeOptions(max_train_features=150),
                 "search": SearchOptions(viewpoint_subdivisions=2, scale_steps=5,
                                         object_kernel=True, chance_correction=True,
-                                        calibration=(0.0, 6.367, 11.381)),
+                                        calibration=(0.0, 9.026, 15.224)),
                 "refine": RefineOptions(rescale=False, local="profile"), "morph_views": True}),
     Preset(
         name="category",

@@ -42,8 +42,9 @@ class Hypothesis:
         Chance that this estimate is right: the true viewpoint within 30
         degrees of this mode's, the box on the object; the best mode's
         calibrated by ``SearchOptions.calibration`` on its preset's
-        development folds, wrong answers among them
-        (:mod:`posevote.refinement.probability`); NaN when not computed.
+        development folds, wrong answers among them, for the estimates the
+        preset reports (:mod:`posevote.refinement.probability`; below the
+        preset's ``min_score`` it may overstate); NaN when not computed.
     contrast : float
         ``score`` over the spread of what the same pose scores elsewhere in
         the frame (:mod:`posevote.scoring.contrast`): how far the mode stands

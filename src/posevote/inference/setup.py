@@ -91,8 +91,10 @@ class SearchOptions(Options):
         ``sigmoid(a logit(p) + b ln(score) + c)`` of its share ``p`` of the
         search's posterior over viewpoints and its score
         (:func:`posevote.refinement.probability.calibrated`); each preset's
-        is fitted on its development folds
-        (``benchmarks/calibrate_probability.py``). ``(1, 0, 0)``: the share.
+        is fitted on its development folds, on the estimates it reports (over
+        its ``min_score``) or on every one, whichever calibrates the reported
+        ones better (``benchmarks/calibrate_probability.py``).
+        ``(1, 0, 0)``: the share.
     image_levels : tuple of float, default (1.0,)
         The image is searched at each of these sizes (1: as given; 0.5: halved,
         with a quarter of the test features, where an object twice the size

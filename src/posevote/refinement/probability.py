@@ -20,8 +20,11 @@ That share knows the viewpoints but not whether the object is there at all
 reads differently in each preset's data. :func:`calibrated` therefore maps
 the best mode's share and score to the probability that it is right, with
 each preset's ``SearchOptions.calibration`` fitted on development folds that
-hold the wrong answers (``benchmarks/calibrate_probability.py``); the other
-modes share what is left in their proportions.
+hold the wrong answers, on the estimates the preset reports (over its
+``min_score``) or on every one, whichever calibrates the reported ones better
+(``benchmarks/calibrate_probability.py``): the probability of a found
+estimate, which may overstate below the threshold. The other modes share what
+is left in their proportions.
 """
 
 from __future__ import annotations
