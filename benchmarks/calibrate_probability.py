@@ -257,7 +257,8 @@ def main(argv: list[str] | None = None) -> int:
         chosen = min(ece, key=lambda name: ece[name])
         on = kept if chosen == "reported" else np.ones(len(records), dtype=bool)
         after = fits[chosen]
-        results[preset] = {"fitted on": chosen, "ece at the threshold": ece,
+        results[preset] = {
+            "fitted on": chosen, "ece at the threshold": ece,
             "n": len(records), "rate": 100.0 * float(right.mean()),
             "every estimate": (measures(share, right), measures(after, right)),
             "at the threshold": (measures(np.where(kept, share, 0.0), right & kept),

@@ -60,7 +60,8 @@ _EPFL_SEARCH = SearchOptions(viewpoint_step_deg=10.0, scale_range=(0.7, 1.45), s
                              max_search_features=1000, calibration=(0.503, 4.009, 7.664))
 
 # Each preset's ``SearchOptions.calibration``: the logistic fit of "right" (within 30 deg,
-# box found) on its development estimates, wrong objects and empty frames among them
+# box found) on its development estimates, wrong objects and empty frames among them: those
+# it reports (over its min_score), or every one where that calibrates them better held out
 # (benchmarks/calibrate_probability.py, docs/results/probability_calibration.md).
 
 PRESETS: dict[str, Preset] = {p.name: p for p in (
