@@ -7,7 +7,10 @@ subpackages: ``data`` -> ``features`` -> ``model`` -> ``inference`` ->
 and :mod:`posevote.presets` names the tuned configurations.
 """
 
+from pathlib import Path
 from typing import Any
+
+from posevote._kernels import refresh_kernel_cache
 
 __all__ = ["Camera", "Hypothesis", "NotFittedError", "PoseEstimate", "PoseEstimator",
            "__version__"]
@@ -16,6 +19,9 @@ __version__ = "0.1.0"
 _EXPORTS = {"PoseEstimator": "posevote.estimator", "NotFittedError": "posevote._errors",
             "Hypothesis": "posevote.results", "PoseEstimate": "posevote.results",
             "Camera": "posevote.camera"}
+
+# Before any kernel is loaded: a cached caller of a changed kernel would run the old one.
+refresh_kernel_cache(Path(__file__).parent)
 
 
 def __getattr__(name: str) -> Any:
