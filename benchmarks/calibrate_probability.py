@@ -250,13 +250,12 @@ def main(argv: list[str] | None = None) -> int:
         kept = np.array([r["detection"] for r in records]) > threshold
         # Fitted on the reported estimates or on every one: whichever calibrates the
         # reported ones better held out.
-        fits = {name: held_out(records, on) for name, on in
-                (("reported", kept), ("every", np.ones(len(records), dtype=bool)))}
+        masks = {"reported": kept, "every": np.ones(len(records), dtype=bool)}
+        fits = {name: held_out(records, on) for name, on in masks.items()}
         ece = {name: measures(np.where(kept, p, 0.0), right & kept)["ece"]
                for name, p in fits.items()}
         chosen = min(ece, key=lambda name: ece[name])
-        on = kept if chosen == "reported" else np.ones(len(records), dtype=bool)
-        after = fits[chosen]
+        on, after = masks[chosen], fits[chosen]
         results[preset] = {
             "fitted on": chosen, "ece at the threshold": ece,
             "n": len(records), "rate": 100.0 * float(right.mean()),
