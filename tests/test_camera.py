@@ -205,6 +205,8 @@ def test_cli_depth_range_sets_the_scales_searched(metric_folder, draw, monkeypat
     est = PoseEstimator.load(model)
     unit = CAM["fy"] * est.object_height_m_ / est.model_.reference_size
     np.testing.assert_allclose(seen[-1].scale_range, (unit / 1.8, unit / 1.2))
+    # Those scales only: no image level searches them at other sizes.
+    assert seen[-1].image_levels == (1.0,)
     assert json.loads(r.output)["best"]["t_cam_obj_m"][2] == pytest.approx(1.5, rel=0.2)
     # A batch's workers search the same scales.
     seen.clear()

@@ -192,11 +192,80 @@ def test_a_halved_level_finds_an_object_twice_the_scales_searched():
         search__image_levels=(1.0, 0.5)).estimate(crop).top_score
 
 
+def test_a_level_over_one_maps_back_the_scale_only():
+    from posevote.results import Hypothesis, PoseEstimate
+
+    h = Hypothesis(azimuth=0.1, elevation=0.0, inplane=0.0, scale=1.0, position=(50.0, 10.0),
+                   box=(39.5, -0.5, 20.0, 20.0), score=0.3, refined=True)
+    back = pipeline.from_level(PoseEstimate(found=True, best=h, modes=(h,), top_score=0.3), 2.0)
+    assert back.best.position == h.position and back.best.box == h.box
+    assert back.best.scale == 0.5
+    image = np.zeros((480, 640))
+    assert pipeline.level_image(image, 2.0) is image
+    from posevote.camera import Camera
+    from posevote.features.edges import EdgeOptions
+
+    camera = Camera(fx=600.0, fy=610.0, cx=319.5, cy=239.5)
+    assert pipeline.level_camera(camera, 2.0) is camera
+    edges = EdgeOptions(max_test_features=2500)
+    assert pipeline.level_edges(edges, (720, 1280), 2.0) is edges
+
+
+def test_a_shrunk_level_finds_an_object_half_the_scales_searched():
+    import cv2
+
+    from posevote.data import toy_views
+
+    images, poses, boxes = toy_views(range(0, 360, 30))
+    view = toy_views([60])[0][0]
+    canvas = np.zeros((480, 640))
+    canvas[200:264, 300:364] = cv2.resize(view, (64, 64), interpolation=cv2.INTER_AREA)
+    from posevote.inference.setup import SearchOptions
+
+    est = PoseEstimator(min_score=0.0, search=SearchOptions(image_levels=(2.0, 1.0)))
+    est.fit(images, poses, boxes=boxes)
+    assert [level for level, _ in est.shrunk_models_] == [2.0]
+    small = est.shrunk_models_[0][1].full_model
+    np.testing.assert_allclose(small.view_box, est.full_model_.view_box / 2)
+    both = est.estimate(canvas)
+    assert both.best.scale == pytest.approx(0.5, rel=0.1)
+    x, y, w, h = both.best.box
+    assert abs(x + w / 2 - (300 + (boxes[2][0] + boxes[2][2] / 2) / 2)) < 6
+    assert abs(np.degrees(both.best.azimuth) - 60) < 15
+    alone = est.set_params(search__image_levels=(1.0,)).estimate(canvas)
+    assert both.top_score > alone.top_score
+    # A level the model was not fitted with is refused, naming it.
+    with pytest.raises(ValueError, match="image level 3 .* fit the model again"):
+        est.set_params(search__image_levels=(3.0, 1.0)).estimate(canvas)
+
+
+def test_the_levels_on_one_image_read_its_edges_and_keypoints_once(monkeypatch):
+    from posevote.data import toy_views
+    from posevote.inference.setup import SearchOptions
+
+    images, poses, boxes = toy_views(range(0, 360, 30))
+    est = PoseEstimator(min_score=0.0, search=SearchOptions(image_levels=(2.0, 1.0, 0.5)),
+                        refine=pipeline.RefineOptions(keypoints=True))
+    est.fit(images, poses, boxes=boxes)
+    canvas = np.zeros((480, 640))
+    canvas[100:228, 200:328] = toy_views([60])[0][0]
+    read: list[tuple[int, ...]] = []
+    edges, keypoints = pipeline.extract_edges, pipeline.image_keypoints
+    monkeypatch.setattr(pipeline, "extract_edges",
+                        lambda image, *a, **k: read.append(image.shape) or edges(image, *a, **k))
+    monkeypatch.setattr(pipeline, "image_keypoints",
+                        lambda image: read.append(("keypoints", *image.shape)) or keypoints(image))
+    est.estimate(canvas)
+    assert sorted(read, key=str) == sorted([(480, 640), (240, 320), ("keypoints", 480, 640),
+                                            ("keypoints", 240, 320)], key=str)
+
+
 def test_image_levels_are_checked():
     from posevote.inference.setup import SearchOptions
 
     assert SearchOptions(image_levels=[0.5, 1.0]).image_levels == (1.0, 0.5)
-    for bad in ((), (1.0, 1.0), (0.05,), (1.5,), (1.0, 0.8, 0.6, 0.4, 0.2), "1", (float("nan"),)):
+    assert SearchOptions(image_levels=(1.0, 1.8)).image_levels == (1.8, 1.0)
+    for bad in ((), (1.0, 1.0), (0.05,), (4.5,), (1.0, 0.8, 0.6, 0.4, 0.2), "1", (float("nan"),)):
         with pytest.raises(ValueError, match="image_levels"):
             SearchOptions(image_levels=bad)
 

@@ -405,7 +405,8 @@ def train(source: Path, output: Path, layout: str, objects: str | None, cars: st
 @click.option("--inplane-range-deg", nargs=2, type=float, default=None,
               help="In-plane angles searched, e.g. -30 30.")
 @click.option("--scale-range", nargs=2, type=float, default=None,
-              help="Scales searched relative to training, e.g. 0.7 1.3.")
+              help="Scales searched relative to training, e.g. 0.7 1.3 (on the image as "
+                   "given: these scales only).")
 @click.option("--depth-range", nargs=2, type=float, default=None, metavar="NEAR FAR",
               help="Depths of the object searched, metres (with --camera; sets the scales).")
 @click.option("--no-fitting", is_flag=True,
@@ -475,8 +476,10 @@ def estimate(model: Path, images: tuple[Path, ...], as_json: bool, as_csv: bool,
                     f"{scale_range[1]:.3g} times the training size, outside {lo:g}-{hi:g}",
                     param_hint="--depth-range")
         if scale_range is not None:
+            # The levels would search the range at other sizes too: these scales only.
             changes["search__scale_range"] = tuple(scale_range)
             changes["search__scale_steps"] = max(est.search.scale_steps, 5)
+            changes["search__image_levels"] = (1.0,)
         if no_fitting:
             changes["refine"] = dataclasses.replace(
                 est.refine, fit=False, rescale=False,

@@ -158,7 +158,7 @@ class PoseEstimator(GroupedParams):
             prune=resolve_preset(self.prune),
             collect=pipeline.collectors(pipeline.artefacts(self._settings())), progress=progress,
             channels=channels, object_height_m=object_height_m, origins=origins,
-            n_threads=self.n_jobs))
+            n_threads=self.n_jobs, levels=self._settings().search.image_levels))
         return self
 
     def partial_fit(self, images: Sequence[ImageLike], poses: ArrayLike, *,
@@ -191,12 +191,12 @@ class PoseEstimator(GroupedParams):
                                       "first")
         return TrainedModel(model=self.model_, full_model=self.full_model_, pruning=self.pruning_,
                             viewpoint_kappa=self.viewpoint_kappa_, appearance=self.appearance_model_,
-                            object_height_m=self.object_height_m_)
+                            object_height_m=self.object_height_m_, shrunk=self.shrunk_models_)
 
     def _set_trained(self, trained: TrainedModel) -> None:
         self.model_, self.full_model_, self.pruning_ = trained.model, trained.full_model, trained.pruning
         self.viewpoint_kappa_, self.appearance_model_ = trained.viewpoint_kappa, trained.appearance
-        self.object_height_m_ = trained.object_height_m
+        self.object_height_m_, self.shrunk_models_ = trained.object_height_m, trained.shrunk
 
     def setup(self) -> SearchSetup:
         """The search setup of the fitted model with the current parameters."""

@@ -31,7 +31,8 @@ keypoints             ``refine.keypoints``            the object where the textu
                                                       the views'
 outline               ``refine.outline``              each mode's box from its views' outline
 contrast              ``search.contrast``             each mode's score over its frame's
-                                                      background spread
+                                                      background spread, less its box's
+                                                      places in the frame
 reject                always (``min_score``)          the modes whose detection score is above
                                                       ``min_score``
 probabilities         always                          each mode's probability
@@ -40,8 +41,11 @@ place                 always                          ``R_cam_obj``, ``t_cam_obj
 
 A switch reads only its own step's option. What several steps read is built
 once, where it is first needed, and handed on: the search's maps, the narrow
-maps (:func:`~posevote.scoring.score.narrow_maps`) and the grey image in
-single precision. A step may also say what it needs from training or from
+maps (:func:`~posevote.scoring.score.narrow_maps`), the grey image in
+single precision and the whole image's keypoints. The steps run once per
+image level (:func:`level_states`: the image resized, or as given with the
+views shrunk), and the level of the best detection score is kept
+(:func:`estimate_levels`). A step may also say what it needs from training or from
 an earlier step (:attr:`Step.needs`): the templates, the appearance model,
 or probes that are only ranked (the verification moves the boxes itself, so
 the search need not polish them); :func:`artefacts` collects them, and
@@ -52,7 +56,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field, fields, replace
 from functools import partial
 from typing import Any, Generic, TypeVar
@@ -81,7 +85,7 @@ from posevote.inference.probes import ProbeSet
 from posevote.inference.search import probe
 from posevote.inference.setup import SearchOptions, SearchSetup, search_maps
 from posevote.keypoints.model import KeypointCollector
-from posevote.keypoints.refine import keypoint_locate, keypoint_refine
+from posevote.keypoints.refine import image_keypoints, keypoint_locate, keypoint_refine
 from posevote.model.density import origin_offset
 from posevote.model.kernels import K1_CUTOFF, KernelOptions
 from posevote.model.outline import outline_at, outline_box
@@ -206,6 +210,9 @@ class EstimateState:
         The narrow maps of ``features``, built when a step first reads them.
     grey : Built
         ``image`` in single precision (the HOG descriptors read it).
+    keypoints : Built
+        The whole image's keypoints, where the keypoint step looks for the object (shared
+        by the levels that search the same image).
     search_maps : TestMaps or list of (TestMaps or None), or None
         The search's maps (after the verification: restricted to its box).
     probes : ProbeSet or None
@@ -237,6 +244,7 @@ class EstimateState:
     camera: Camera | None = None
     narrow: Built[TestMaps]
     grey: Built[NDArray[np.float32]]
+    keypoints: Built[tuple[NDArray[np.float64], NDArray[np.uint8]]]
     search_maps: TestMaps | list[TestMaps | None] | list[TestMaps] | None = None
     probes: ProbeSet | None = None
     modes: tuple[int, ...] = ()
@@ -427,8 +435,8 @@ def keypoints(state: EstimateState) -> EstimateState:
     upright = tuple(state.settings.search.inplane_range_deg) == (0.0, 0.0)
     hyps = state.hypotheses
     # A recognised instance was recognised at the mode's box: its place is the mode's.
-    located = (keypoint_locate(hyps[0], full, state.image, upright=upright)
-               if len(names) == 1 else None)
+    located = (keypoint_locate(hyps[0], full, state.image, upright=upright,
+                               keypoints=state.keypoints()) if len(names) == 1 else None)
     front_back = state.front_back
     if located is not None:
         # The texture found the object away from the mode (kept next); the edges polish it,
@@ -657,15 +665,20 @@ def search_setup(settings: Settings, trained: TrainedModel) -> SearchSetup:
 
 def begin(settings: Settings, trained: TrainedModel, image: NDArray[np.float64],
           features: EdgeFeatures, *, steps: Sequence[Step], camera: Camera | None = None,
-          progress: Callable[[int], None] | None = None) -> EstimateState:
-    """The state before the first of ``steps``, on the image's features."""
+          progress: Callable[[int], None] | None = None,
+          keypoints: Built[tuple[NDArray[np.float64], NDArray[np.uint8]]] | None = None
+          ) -> EstimateState:
+    """The state before the first of ``steps``, on the image's features (and the whole
+    image's ``keypoints``, where another state on the same image reads them too)."""
     setup = search_setup(settings, trained)
     shape = (int(image.shape[0]), int(image.shape[1]))
     return EstimateState(settings=settings, trained=trained, setup=setup,
                          needs=artefacts(settings, steps), image=image, features=features,
                          camera=camera, progress=progress,
                          narrow=Built(partial(narrow_maps, features, shape, setup)),
-                         grey=Built(partial(np.asarray, image, dtype=np.float32)))
+                         grey=Built(partial(np.asarray, image, dtype=np.float32)),
+                         keypoints=Built(partial(image_keypoints, image)) if keypoints is None
+                         else keypoints)
 
 
 def run(state: EstimateState, steps: Sequence[Step]) -> EstimateState:
@@ -733,8 +746,9 @@ def image_levels(settings: Settings, shape: tuple[int, ...]) -> tuple[float, ...
 
 
 def level_image(image: NDArray[np.float64], level: float) -> NDArray[np.float64]:
-    """The image at ``level`` of its size (area-averaged; itself at 1)."""
-    if level == 1.0:
+    """The image at ``level`` of its size (area-averaged); itself at 1 and over (a level over
+    1 shrinks the model's views instead: :meth:`TrainedModel.at_level`)."""
+    if level >= 1.0:
         return image
     h, w = image.shape[:2]
     size = (max(1, int(round(w * level))), max(1, int(round(h * level))))
@@ -745,7 +759,7 @@ def level_image(image: NDArray[np.float64], level: float) -> NDArray[np.float64]
 def level_camera(camera: Camera | None, level: float) -> Camera | None:
     """The camera of an image resized by ``level`` (pixel centres kept; no distortion: the
     image was undistorted before)."""
-    if camera is None or level == 1.0:
+    if camera is None or level >= 1.0:
         return camera
     return Camera(fx=camera.fx * level, fy=camera.fy * level,
                   cx=(camera.cx + 0.5) * level - 0.5, cy=(camera.cy + 0.5) * level - 0.5)
@@ -754,7 +768,7 @@ def level_camera(camera: Camera | None, level: float) -> Camera | None:
 def level_edges(edges: EdgeOptions, shape: tuple[int, ...], level: float) -> EdgeOptions:
     """The edge options at ``level``: the image's test budget times the level's area, so that
     the points are as many per object as at full size and the scores of the levels compare."""
-    if level == 1.0 or edges.max_test_features is None:
+    if level >= 1.0 or edges.max_test_features is None:
         return edges
     budget = frame_budget(edges, shape)
     assert budget is not None
@@ -762,31 +776,42 @@ def level_edges(edges: EdgeOptions, shape: tuple[int, ...], level: float) -> Edg
 
 
 def from_level(estimate: PoseEstimate, level: float) -> PoseEstimate:
-    """An estimate made at ``level`` of the image's size, in the image's pixels and scale
-    (the camera-frame pose is the same: the level's camera was the image's, scaled)."""
+    """An estimate made at ``level``, in the image's pixels and the model's scale (the
+    camera-frame pose is the same: the level's camera was the image's, scaled; over 1, the
+    image was itself and the views shrunk by the level)."""
     if level == 1.0:
         return estimate
+    zoom = min(level, 1.0)
 
     def back(h: Hypothesis) -> Hypothesis:
-        u, v = ((c + 0.5) / level - 0.5 for c in h.position)
+        u, v = ((c + 0.5) / zoom - 0.5 for c in h.position)
         x, y, w, bh = h.box
         return replace(h, position=(u, v), scale=h.scale / level,
-                       box=((x + 0.5) / level - 0.5, (y + 0.5) / level - 0.5, w / level,
-                            bh / level))
+                       box=((x + 0.5) / zoom - 0.5, (y + 0.5) / zoom - 0.5, w / zoom,
+                            bh / zoom))
 
     modes = tuple(back(h) for h in estimate.modes)
     best = None if estimate.best is None else back(estimate.best)
     return replace(estimate, best=best, modes=modes)
 
 
-def level_state(settings: Settings, trained: TrainedModel, image: NDArray[np.float64],
-                edges: EdgeOptions, steps: Sequence[Step], level: float, *,
-                camera: Camera | None = None) -> EstimateState:
-    """The state before the first of ``steps`` on the image at ``level`` of its size."""
-    scaled = level_image(image, level)
-    features = extract_edges(scaled, level_edges(edges, image.shape, level), training=False)
-    return begin(settings, trained, scaled, features, steps=steps,
-                 camera=level_camera(camera, level))
+def level_states(settings: Settings, trained: TrainedModel, image: NDArray[np.float64],
+                 edges: EdgeOptions, steps: Sequence[Step], *, camera: Camera | None = None
+                 ) -> Iterator[tuple[float, EstimateState]]:
+    """Each level (:func:`image_levels`) and the state before the first of ``steps`` there:
+    the image at the level of its size searched with the model, or over 1 the image itself
+    with the views shrunk by the level (its edges read once for the levels that share it)."""
+    read: dict[float, tuple[NDArray[np.float64], EdgeFeatures, Built[Any]]] = {}
+    for level in image_levels(settings, image.shape):
+        zoom = min(level, 1.0)
+        if zoom not in read:
+            scaled = level_image(image, zoom)
+            read[zoom] = (scaled, extract_edges(scaled, level_edges(edges, image.shape, zoom),
+                                                training=False),
+                          Built(partial(image_keypoints, scaled)))
+        scaled, features, keypoints = read[zoom]
+        yield level, begin(settings, trained.at_level(level), scaled, features, steps=steps,
+                           camera=level_camera(camera, zoom), keypoints=keypoints)
 
 
 def estimate_levels(settings: Settings, trained: TrainedModel, image: NDArray[np.float64],
@@ -795,8 +820,7 @@ def estimate_levels(settings: Settings, trained: TrainedModel, image: NDArray[np
     """The estimate of the level (:func:`image_levels`) whose best mode's detection score
     (``top_score``) is highest, in the image's pixels; its time counts from ``start``."""
     kept: PoseEstimate | None = None
-    for level in image_levels(settings, image.shape):
-        state = level_state(settings, trained, image, edges, steps, level, camera=camera)
+    for level, state in level_states(settings, trained, image, edges, steps, camera=camera):
         estimate = from_level(result(run(state, steps), start), level)
         if kept is None or estimate.top_score > kept.top_score:
             kept = estimate
@@ -809,13 +833,13 @@ def objects_at_levels(settings: Settings, trained: TrainedModel, image: NDArray[
                       camera: Camera | None = None, start: float) -> list[PoseEstimate]:
     """:func:`estimate_objects` at each level, merged: best score first, a box overlapping
     one kept (IoU over :data:`OBJECT_OVERLAP`) dropped, at most ``max_objects``."""
-    levels = image_levels(settings, image.shape)
     found: list[PoseEstimate] = []
-    for level in levels:
-        state = level_state(settings, trained, image, edges, steps, level, camera=camera)
+    levels = 0
+    for level, state in level_states(settings, trained, image, edges, steps, camera=camera):
         found += [from_level(e, level)
                   for e in estimate_objects(state, steps, max_objects, start=start)]
-    if len(levels) == 1:
+        levels += 1
+    if levels == 1:
         return found
     kept: list[PoseEstimate] = []
     for estimate in sorted(found, key=lambda e: -e.best.detection_score if e.best else 0.0):

@@ -198,3 +198,26 @@ def test_appearance_arrays_round_trip_and_are_checked(tmp_path, toy_model):
         _rewrite(tmp_path / "m.npz", tmp_path / "bad.npz", **{name: bad})
         with pytest.raises(ValueError, match=f"bad.npz: corrupt model file \\((array )?{name}"):
             load_model(tmp_path / "bad.npz")
+
+
+def test_shrunk_models_round_trip_and_are_checked(tmp_path, toy_model):
+    from dataclasses import replace
+
+    model = toy_model()
+    small = _trained(replace(model, xy=model.xy / 2))
+    save_model(tmp_path / "m.npz", _trained(model, shrunk=((1.8, small),)), {})
+    [(level, read)] = load_model(tmp_path / "m.npz")[0].shrunk
+    assert level == 1.8 and read.shrunk == ()
+    np.testing.assert_array_equal(read.model.xy, model.xy / 2)
+    assert load_model(tmp_path / "m.npz")[0].model.xy.tolist() == model.xy.tolist()
+    for header in ({"levels": []}, {"levels": [0.5]}, {"levels": ["x"]}):
+        with np.load(tmp_path / "m.npz") as data:
+            extra = json.loads(data["header"].tobytes())["extra"]
+        _rewrite(tmp_path / "m.npz", tmp_path / "bad.npz", header={"extra": {**extra, **header}})
+        with pytest.raises(ValueError, match="bad.npz: corrupt model file .*levels"):
+            load_model(tmp_path / "bad.npz")
+    # A shrunk model's own bytes, corrupt: named as the file's level model.
+    _rewrite(tmp_path / "m.npz", tmp_path / "bad.npz",
+             level_model_0=np.frombuffer(b"not an archive", dtype=np.uint8))
+    with pytest.raises(ValueError, match=r"bad.npz \(its level 1.8 model\): not a posevote"):
+        load_model(tmp_path / "bad.npz")

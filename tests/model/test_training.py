@@ -211,3 +211,40 @@ def test_extending_needs_what_can_be_redone(synthetic_training):
         looked.partial_fit(images[:1], az[:1])
     with pytest.raises(TypeError, match="single"):
         PoseEstimator().fit(images, az).partial_fit("folder", az[:1])
+
+
+def test_a_levels_model_is_the_views_shrunk_and_grows_with_them(synthetic_training, tmp_path):
+    import cv2
+
+    from posevote import PoseEstimator
+    from posevote.geometry import box_centre
+    from posevote.inference.setup import SearchOptions
+
+    images, az, boxes = synthetic_training
+    masks = [img > 0.05 for img in images]
+    origins = np.array([box_centre(b) for b in boxes]) + [4.0, -2.0]
+    levels = SearchOptions(image_levels=(2.0, 1.0))
+    whole = PoseEstimator(search=levels).fit(images, az, boxes=boxes, masks=masks,
+                                             origins=origins)
+    [(level, small)] = whole.shrunk_models_
+    # The same as a model fitted on the images halved, their boxes, masks and origins with them.
+    size = (images[0].shape[1] // 2, images[0].shape[0] // 2)
+    halved = PoseEstimator().fit(
+        [cv2.resize(i, size, interpolation=cv2.INTER_AREA) for i in images], az,
+        boxes=np.column_stack([(boxes[:, :2] + 0.5) / 2 - 0.5, boxes[:, 2:] / 2]),
+        masks=[cv2.resize(m.astype(np.uint8), size, interpolation=cv2.INTER_NEAREST) > 0
+               for m in masks], origins=(origins + 0.5) / 2 - 0.5)
+    assert level == 2.0 and halved.shrunk_models_ == ()
+    for name in ("xy", "theta", "weight", "view_box", "view_origin", "view_outline"):
+        np.testing.assert_allclose(getattr(small.full_model, name),
+                                   getattr(halved.full_model_, name), err_msg=name)
+    # Saved, loaded and grown with more views: what a fit on all of them learns.
+    PoseEstimator(search=levels).fit(images[:10], az[:10], boxes=boxes[:10], masks=masks[:10],
+                                     origins=origins[:10]).save(tmp_path / "m.npz")
+    grown = PoseEstimator.load(tmp_path / "m.npz").partial_fit(
+        images[10:], az[10:], boxes=boxes[10:], masks=masks[10:], origins=origins[10:])
+    [(level, more)] = grown.shrunk_models_
+    assert level == 2.0
+    for name in ("xy", "theta", "weight", "view_box", "view_origin"):
+        np.testing.assert_allclose(getattr(more.full_model, name),
+                                   getattr(small.full_model, name), atol=1e-9, err_msg=name)

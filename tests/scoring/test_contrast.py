@@ -86,27 +86,54 @@ def test_contrast_is_measured_and_read_by_the_threshold(toy_estimator):
         est.set_params(search__contrast=False, min_score=0.0)
 
 
-def test_background_scores_read_the_frame_away_from_the_mode(toy_estimator):
-    view = toy_views([60])[0][0]
-    est = toy_estimator.set_params(search__contrast=False)
-    image = _frame(view, clutter=True)
-    best = est.estimate(image).best
+def _cluttered_mode(est):
+    """The best mode in a cluttered frame, the state before the steps, the score options."""
     from posevote import pipeline
     from posevote.scoring.score import score_options
 
+    est.set_params(search__contrast=False)
+    image = _frame(toy_views([60])[0][0], clutter=True)
+    best = est.estimate(image).best
     settings = est._settings()
     state = pipeline.begin(settings, est._trained(), image,
                            pipeline.extract_edges(image, est.edges, training=False),
                            steps=pipeline.active_steps(settings))
+    return best, state, score_options(state.setup)
+
+
+def test_background_scores_read_the_frame_away_from_the_mode(toy_estimator):
+    est = toy_estimator
+    best, state, options = _cluttered_mode(est)
     scores = background_scores(best, est._trained().model, state.narrow(), state.shape,
-                               **score_options(state.setup))
+                               **options)
     assert len(scores) == len(placements(best, state.shape)[0])
     assert scores.max() > 0 and scores.min() >= 0
     # None of them is the object itself.
     assert scores.max() < best.score
+    z = best.score / (scores.std() + SPREAD_FLOOR)
+    places = state.shape[0] * state.shape[1] / (best.box[2] * best.box[3])
     assert mode_contrast(best, est._trained().model, state.narrow(), state.shape,
-                         **score_options(state.setup)) == pytest.approx(
-        best.score / (scores.std() + SPREAD_FLOOR))
+                         **options) == pytest.approx(math.sqrt(z * z - 2.0 * math.log(places)))
+
+
+def test_the_contrast_asks_more_of_a_box_with_more_places_in_its_frame(toy_estimator):
+    from dataclasses import replace
+
+    est = toy_estimator
+    best, state, options = _cluttered_mode(est)
+
+    def contrast(mode, shape):
+        return mode_contrast(mode, est._trained().model, state.narrow(), shape, **options)
+
+    # The same pose and score, its box a quarter of the area: four times the places.
+    x, y, w, h = best.box
+    small = replace(best, box=(x, y, w / 2, h / 2))
+    assert contrast(small, state.shape) < contrast(best, state.shape)
+    # A box as large as its frame has one place: the contrast is the score over the spread.
+    whole = replace(best, box=(0.0, 0.0, float(state.shape[1]), float(state.shape[0])))
+    z = best.score / (background_scores(whole, est._trained().model, state.narrow(),
+                                        state.shape, **options).std() + SPREAD_FLOOR)
+    assert contrast(whole, state.shape) == pytest.approx(z)
 
 
 def test_contrast_option_is_a_flag():

@@ -39,6 +39,8 @@ CHANCE_WIDTH = 4.0
 #: The scales a search may be given (``SearchOptions.scale_range``): below, an
 #: object of the training size is a few pixels; above, its maps outgrow memory.
 SCALE_LIMITS = (0.05, 20.0)
+#: The largest image level: the training views shrunk by it still hold edges.
+MAX_LEVEL = 4.0
 
 
 @dataclass(frozen=True, kw_only=True, repr=False)
@@ -98,10 +100,12 @@ class SearchOptions(Options):
     image_levels : tuple of float, default (1.0,)
         The image is searched at each of these sizes (1: as given; 0.5: halved,
         with a quarter of the test features, where an object twice the size
-        ``scale_range`` covers looks as one it covers), and the level whose
+        ``scale_range`` covers looks as one it covers; 1.8: as given, with the
+        model learnt from the training views shrunk by 1.8 at fit, where an
+        object 1/1.8 the size looks as one it covers), and the level whose
         best mode's ``detection_score`` is highest is kept, mapped back to the image
-        (:func:`posevote.pipeline.estimate_levels`): coarse scales first. A
-        frame under 640 x 480 pixels is searched as given only.
+        (:func:`posevote.pipeline.estimate_levels`). A frame under 640 x 480
+        pixels is searched as given only.
     contrast : bool, default False
         Measure each mode's contrast, its score over the spread of what its
         pose scores elsewhere in the frame (:mod:`posevote.scoring.contrast`),
@@ -154,7 +158,7 @@ class SearchOptions(Options):
                        self.inplane_step_deg)
 
     def _image_levels(self) -> None:
-        expected = "1 to 4 distinct sizes from 0.1 to 1"
+        expected = f"1 to 4 distinct sizes from 0.1 to {MAX_LEVEL:g}"
         value = self.image_levels
         if isinstance(value, (str, bytes, dict)):
             self._fail("image_levels", expected, value)
@@ -163,7 +167,7 @@ class SearchOptions(Options):
         except (TypeError, ValueError):
             self._fail("image_levels", expected, value)
         if not (1 <= len(levels) == len(tuple(value)) <= 4
-                and all(0.1 <= v <= 1.0 for v in levels)):
+                and all(0.1 <= v <= MAX_LEVEL for v in levels)):
             self._fail("image_levels", expected, value)
         object.__setattr__(self, "image_levels", levels)
 

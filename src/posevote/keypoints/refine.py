@@ -187,8 +187,17 @@ def _fit_share(test: NDArray[np.float64], start: NDArray[np.float64], end: NDArr
     return t, s
 
 
+def image_keypoints(image: NDArray[np.floating]
+                    ) -> tuple[NDArray[np.float64], NDArray[np.uint8]]:
+    """The whole image's keypoints that :func:`keypoint_locate` looks for the object among:
+    at most :data:`LOCATE_KEYPOINTS` per 640 x 480 of it, SIFT's strongest."""
+    return detect_keypoints(image, limit=area_budget(LOCATE_KEYPOINTS, image.shape))
+
+
 def keypoint_locate(hypothesis: Hypothesis, model: PoseModel, image: NDArray[np.floating],
-                    *, upright: bool = False) -> tuple[Hypothesis, float] | None:
+                    *, upright: bool = False,
+                    keypoints: tuple[NDArray[np.float64], NDArray[np.uint8]] | None = None
+                    ) -> tuple[Hypothesis, float] | None:
     """The object where the whole image's keypoints find it, where the best mode's box holds
     none of its texture.
 
@@ -212,6 +221,8 @@ def keypoint_locate(hypothesis: Hypothesis, model: PoseModel, image: NDArray[np.
     upright : bool, optional
         The search held the object upright: a similarity that turns it by more than
         :data:`MAX_TURN` places nothing.
+    keypoints : (ndarray, ndarray), optional
+        The image's :func:`image_keypoints`, where already read.
 
     Returns
     -------
@@ -230,7 +241,7 @@ def keypoint_locate(hypothesis: Hypothesis, model: PoseModel, image: NDArray[np.
     _need_keypoints(model)
     assert model.keypoint_xy is not None and model.keypoint_descriptor is not None
     assert model.keypoint_view is not None
-    xy, desc = detect_keypoints(image, limit=area_budget(LOCATE_KEYPOINTS, image.shape))
+    xy, desc = image_keypoints(image) if keypoints is None else keypoints
     if len(xy) < MIN_INLIERS or len(model.keypoint_view) < MIN_INLIERS:
         return None
     matcher = cv2.BFMatcher(cv2.NORM_L2)

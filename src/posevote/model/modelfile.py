@@ -20,7 +20,10 @@ for morphed models; ``view_origin`` when training gave the object's origin;
 training gave masks;
 ``view_descriptor``, ``objectness`` and ``box_regressor`` for the
 appearance stages; ``keypoint_xy``, ``keypoint_descriptor`` (uint8) and
-``keypoint_view`` for the keypoint step. Versions 5 and 6 are read: version 5 named the
+``keypoint_view`` for the keypoint step; ``level_model_0``, ``level_model_1``, ...
+(uint8), each the bytes of a model file of its own without parameters, the
+model of the views shrunk by the image level over 1 at the same place in the
+header's ``extra.levels``. Versions 5 and 6 are read: version 5 named the
 refinement steps' switches ``fitting`` and ``local_refinement`` and the
 template steps ``search.rerank = "template"``; its parameters are read as
 the same steps' switches (:func:`_version_5_params`). Files of versions 1-4
@@ -30,6 +33,7 @@ retrained.
 
 from __future__ import annotations
 
+import io
 import json
 import zipfile
 import zlib
@@ -37,6 +41,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from posevote._io import atomic_open, parse_json
 from posevote.camera import check_object_height
@@ -83,6 +88,15 @@ def save_model(path: str | Path, trained: TrainedModel, params: dict[str, Any], 
         ``{"name": ..., "overrides": {...}}``: the preset the parameters
         come from and what differs from it.
     """
+    arrays = _arrays(trained, params, preset)
+    with atomic_open(path, "wb") as fh:
+        np.savez_compressed(fh, **arrays)
+
+
+def _arrays(trained: TrainedModel, params: dict[str, Any], preset: dict[str, Any] | None
+            ) -> dict[str, Any]:
+    """What a model file holds, by array name; each shrunk model as a model file of its own
+    (its bytes), ``level_model_<i>``."""
     model, full = trained.model, trained.full_model
     header = {
         "format": FORMAT_NAME,
@@ -96,7 +110,8 @@ def save_model(path: str | Path, trained: TrainedModel, params: dict[str, Any], 
         "extra": {"viewpoint_kappa": trained.viewpoint_kappa, "pruning": trained.pruning,
                   "object_height_m": trained.object_height_m,
                   "descriptor_window": None if trained.appearance is None
-                  else list(trained.appearance.window)},
+                  else list(trained.appearance.window),
+                  "levels": [level for level, _ in trained.shrunk]},
     }
     arrays = {name: getattr(model, name) for name in _ARRAYS}
     for name in (*_MORPH_ARRAYS, *_VIEW_OPTIONAL, *_KEYPOINT_ARRAYS):
@@ -113,9 +128,12 @@ def save_model(path: str | Path, trained: TrainedModel, params: dict[str, Any], 
             arrays["objectness"] = np.asarray(look.objectness, dtype=np.float64)
         if look.regressor is not None:
             arrays["box_regressor"] = np.asarray(look.regressor, dtype=np.float64)
+    for i, (_, small) in enumerate(trained.shrunk):
+        packed = io.BytesIO()
+        np.savez_compressed(packed, **_arrays(small, {}, None))
+        arrays[f"level_model_{i}"] = np.frombuffer(packed.getvalue(), dtype=np.uint8)
     arrays["header"] = np.frombuffer(json.dumps(header).encode("utf-8"), dtype=np.uint8)
-    with atomic_open(path, "wb") as fh:
-        np.savez_compressed(fh, **arrays)
+    return arrays
 
 
 def load_model(path: str | Path) -> tuple[TrainedModel, dict[str, Any]]:
@@ -156,8 +174,18 @@ def load_model(path: str | Path) -> tuple[TrainedModel, dict[str, Any]]:
                          "model file")
     if not zipfile.is_zipfile(path):
         raise ValueError(f"{path}: not a posevote model file (not an .npz archive, or truncated)")
+    return _read(str(path), path)
+
+
+def _read(path: str, source: Path | io.BytesIO, *, nested: bool = False
+          ) -> tuple[TrainedModel, dict[str, Any]]:
+    """:func:`load_model` of ``source`` (a file, or a shrunk model's bytes: ``nested``, which
+    holds none of its own), ``path`` naming it in errors."""
+    if nested and not zipfile.is_zipfile(source):
+        raise ValueError(f"{path}: not a posevote model file (not an .npz archive, or truncated)")
+    packed: list[NDArray[np.uint8]] = []
     try:
-        with np.load(path, allow_pickle=False) as data:
+        with np.load(source, allow_pickle=False) as data:
             if "header" not in data.files:
                 raise ValueError(f"{path}: not a posevote model file (no header)")
             header = parse_json(bytes(data["header"]).decode("utf-8"), f"{path}: header")
@@ -196,6 +224,8 @@ def load_model(path: str | Path) -> tuple[TrainedModel, dict[str, Any]]:
                           if "objectness" in data.files else None)
             regressor = (data["box_regressor"].astype(np.float64)
                          if "box_regressor" in data.files else None)
+            while f"level_model_{len(packed)}" in data.files:
+                packed.append(data[f"level_model_{len(packed)}"])
     except ValueError as exc:
         if str(exc).startswith(str(path)):
             raise
@@ -244,10 +274,19 @@ def load_model(path: str | Path) -> tuple[TrainedModel, dict[str, Any]]:
         height = check_object_height(extra.get("object_height_m"))
     except ValueError as exc:
         raise ValueError(f"{path}: corrupt model file ({exc})") from None
+    levels = extra.get("levels", [])
+    if not (isinstance(levels, list) and len(levels) == len(packed) and not (nested and levels)
+            and all(isinstance(v, (int, float)) and not isinstance(v, bool) and 1.0 < v <= 4.0
+                    for v in levels)):
+        raise ValueError(f"{path}: corrupt model file (levels {levels!r} for {len(packed)} "
+                         "shrunk models)")
+    shrunk = tuple((float(level), _read(f"{path} (its level {level:g} model)",
+                                        io.BytesIO(arr.tobytes()), nested=True)[0])
+                   for level, arr in zip(levels, packed, strict=True))
     trained = TrainedModel(model=model, full_model=model if full_model is None else full_model,
                            viewpoint_kappa=float(kappa), appearance=look,
                            pruning=pruning if isinstance(pruning, dict) else None,
-                           object_height_m=height)
+                           object_height_m=height, shrunk=shrunk)
     if header["version"] == 5:
         params = _version_5_params(params, len(model.instance_names))
     return trained, dict(params)
@@ -281,7 +320,7 @@ def _version_5_params(params: dict[str, Any], n_instances: int) -> dict[str, Any
     return out
 
 
-def _check_sizes(path: Path, data: Any) -> None:
+def _check_sizes(path: str, data: Any) -> None:
     """Refuse arrays whose declared size, shape or type is past the limits or does not fit
     the others', before decompressing any of them."""
     declared: dict[str, tuple[tuple[int, ...], np.dtype]] = {}
@@ -334,7 +373,7 @@ def _check_sizes(path: Path, data: Any) -> None:
         refuse("header", "at most 16 MiB of JSON")
 
 
-def _check_header(path: Path, header: dict[str, Any]) -> None:
+def _check_header(path: str, header: dict[str, Any]) -> None:
     """The header's fields have the types :func:`_build` reads."""
     names = header.get("instance_names", [])
     if not (isinstance(names, list) and all(isinstance(n, str) for n in names)):
@@ -355,7 +394,7 @@ _BOUNDS = {"xy": 1e6, "theta": 4 * np.pi, "weight": 1e6, "view_azimuth": 4 * np.
            "view_elevation": np.pi, "view_box": 1e6}
 
 
-def _build(path: Path, arrays: dict[str, np.ndarray], header: dict[str, Any]) -> PoseModel:
+def _build(path: str, arrays: dict[str, np.ndarray], header: dict[str, Any]) -> PoseModel:
     """A PoseModel from the file's arrays, after checking their shapes."""
     m = len(arrays["theta"])
     k = len(arrays["view_azimuth"])

@@ -108,6 +108,9 @@ class TrainedModel:
         The pruning knobs used (None: not pruned).
     object_height_m : float or None
         The object's height in metres, when known (:mod:`posevote.camera`).
+    shrunk : tuple of (float, TrainedModel)
+        Each image level over 1 and the model learnt from the views shrunk by it
+        (:func:`posevote.pipeline.level_states` searches it on the image as given).
     """
 
     model: PoseModel
@@ -116,6 +119,26 @@ class TrainedModel:
     appearance: AppearanceModel | None = None
     pruning: dict[str, Any] | None = None
     object_height_m: float | None = None
+    shrunk: tuple[tuple[float, TrainedModel], ...] = ()
+
+    def at_level(self, level: float) -> TrainedModel:
+        """The model searched at image ``level``: itself up to 1, the views shrunk by
+        ``level`` over 1.
+
+        Raises
+        ------
+        ValueError
+            If the level is over 1 and the model was not fitted with it.
+        """
+        if level <= 1.0:
+            return self
+        for shrink, trained in self.shrunk:
+            if shrink == level:
+                return trained
+        fitted = ", ".join(f"{s:g}" for s, _ in self.shrunk) or "none"
+        raise ValueError(f"image level {level:g} searches the training views shrunk by it, "
+                         f"learnt at fit (this model's levels over 1: {fitted}); fit the model "
+                         "again with these search.image_levels")
 
 
 #: Pose angles beyond this (radians) are refused: they are degrees given as radians.
@@ -211,7 +234,8 @@ def train_model(images: Sequence[str | Path | NDArray], poses: ArrayLike, *,
                 collect: Sequence[CollectorFactory] = (),
                 progress: Callable[[int], None] | None = None,
                 channels: str = "rgb", object_height_m: float | None = None,
-                origins: ArrayLike | None = None, n_threads: int = 1) -> TrainedModel:
+                origins: ArrayLike | None = None, n_threads: int = 1,
+                levels: Sequence[float] = ()) -> TrainedModel:
     """Learn a model from pose-annotated images (Sec. II-A, II-C, III-A).
 
     Parameters
@@ -232,6 +256,11 @@ def train_model(images: Sequence[str | Path | NDArray], poses: ArrayLike, *,
     n_threads : int, optional
         Threads reading the images and weighing the instances' features: the
         time of training, not its result.
+    levels : sequence of float, optional
+        Image levels searched; for each over 1 a model is also learnt from the
+        views shrunk by it (``TrainedModel.shrunk``: a small object's edges as the
+        camera sees them, searched near scale 1; ``progress`` counts the first
+        reading only).
 
     Returns
     -------
@@ -242,11 +271,21 @@ def train_model(images: Sequence[str | Path | NDArray], poses: ArrayLike, *,
         raise TypeError(f"images must be a sequence of image paths or arrays, got the single "
                         f"path {str(images)!r} (read a training folder with read_poses_csv)")
     images = list(images)
-    views = _extract(images, poses, boxes, masks, instances, edges=edges, morph=morph,
-                     collect=collect, progress=progress, channels=channels,
-                     n_threads=n_threads, origins=origins)
-    return _pool(views, category=category, kernel=kernel, prune=prune, height=height,
-                 n_threads=n_threads)
+    trained = None
+    shrunk = []
+    for level in (1.0, *sorted({float(v) for v in levels if v > 1.0})):
+        views = _extract(images, poses, boxes, masks, instances, edges=edges, morph=morph,
+                         collect=collect, progress=progress if level == 1.0 else None,
+                         channels=channels, n_threads=n_threads, origins=origins,
+                         shrink=1.0 / level)
+        pooled = _pool(views, category=category, kernel=kernel, prune=prune, height=height,
+                       n_threads=n_threads)
+        if trained is None:
+            trained = pooled
+        else:
+            shrunk.append((level, pooled))
+    assert trained is not None
+    return replace(trained, shrunk=tuple(shrunk))
 
 
 @dataclass(kw_only=True, eq=False)
@@ -268,11 +307,15 @@ def _extract(images: list[Any], poses: ArrayLike, boxes: ArrayLike | None,
              masks: Sequence[Any] | None, instances: Sequence[str] | None, *,
              edges: EdgeOptions, morph: bool, collect: Sequence[CollectorFactory],
              progress: Callable[[int], None] | None, channels: str, n_threads: int = 1,
-             origins: ArrayLike | None = None) -> _Views:
-    """Each image's edges inside its box (and mask), box and pose (``n_threads`` images at a time)."""
+             origins: ArrayLike | None = None, shrink: float = 1.0) -> _Views:
+    """Each image's edges inside its box (and mask), box and pose (``n_threads`` images at a
+    time), each image first resized by ``shrink`` (its box, mask and origin with it)."""
     pose_arr, box_arr, mask_list, names = _check_inputs(images, poses, boxes, masks, instances)
     k = len(images)
     origin_arr = None if origins is None else _check_origins(origins, k)
+    if origin_arr is not None and shrink != 1.0:
+        origin_arr = np.column_stack([(origin_arr[:, :2] + 0.5) * shrink - 0.5,
+                                      origin_arr[:, 2:]])
     feats, centres, sizes = [], np.zeros((k, 2)), np.zeros((k, 2))
     outlines, masked = np.zeros((k, OUTLINE_ANGLES)), False
     collectors = [make(box_arr) for make in collect]
@@ -285,8 +328,12 @@ def _extract(images: list[Any], poses: ArrayLike, boxes: ArrayLike | None,
         image = images[i]
         label = str(image) if isinstance(image, (str, Path)) else f"images[{i}]"
         img = load_image(image, name=label, channels=channels)
+        if shrink != 1.0:
+            label += f" (shrunk by {1.0 / shrink:g} for its image level)"
         mask = _read_mask(label, mask_list[i], img.shape)
         box = _object_box(label, img, box_arr[i], mask)
+        if shrink != 1.0:
+            img, mask, box = _shrunk(img, mask, box, shrink)
         region = box_mask(img.shape, box)
         if mask is not None:
             # The mask grown by 2 pixels: edges on the outline stay.
@@ -318,6 +365,22 @@ def _extract(images: list[Any], poses: ArrayLike, boxes: ArrayLike | None,
     return _Views(feats=feats, centres=centres, sizes=sizes, poses=pose_arr, names=names,
                   collectors=collectors, crops=crops, origins=origin_arr,
                   outlines=outlines if masked else None)
+
+
+def _shrunk(img: NDArray[np.float64], mask: NDArray[np.bool_] | None, box: NDArray[np.float64],
+            shrink: float) -> tuple[NDArray[np.float64], NDArray[np.bool_] | None,
+                                    NDArray[np.float64]]:
+    """The image (area-averaged), its mask and its box resized by ``shrink`` (pixel centres
+    kept)."""
+    h, w = img.shape[:2]
+    size = (max(1, int(round(w * shrink))), max(1, int(round(h * shrink))))
+    small = np.asarray(cv2.resize(np.asarray(img, dtype=np.float32), size,
+                                  interpolation=cv2.INTER_AREA), dtype=np.float64)
+    if mask is not None:
+        mask = cv2.resize(mask.astype(np.uint8), size, interpolation=cv2.INTER_NEAREST) > 0
+    x, y, bw, bh = box
+    return small, mask, np.array([(x + 0.5) * shrink - 0.5, (y + 0.5) * shrink - 0.5,
+                                  bw * shrink, bh * shrink])
 
 
 def _check_origins(origins: ArrayLike, k: int) -> NDArray[np.float64]:
@@ -455,8 +518,22 @@ def extend_model(trained: TrainedModel, images: Sequence[str | Path | NDArray], 
     if isinstance(images, (str, Path)):
         raise TypeError(f"images must be a sequence of image paths or arrays, got the single "
                         f"path {str(images)!r}")
-    new = _extract(list(images), poses, boxes, masks, instances, edges=edges, morph=False,
-                   collect=collect, progress=progress, channels=channels, origins=origins)
+    images = list(images)
+
+    def read(shrink: float) -> _Views:
+        return _extract(images, poses, boxes, masks, instances, edges=edges, morph=False,
+                        collect=collect, progress=progress if shrink == 1.0 else None,
+                        channels=channels, origins=origins, shrink=shrink)
+
+    return replace(_extended(trained, read(1.0), kernel=kernel, prune=prune), shrunk=tuple(
+        (level, _extended(small, read(1.0 / level), kernel=kernel, prune=prune))
+        for level, small in trained.shrunk))
+
+
+def _extended(trained: TrainedModel, new: _Views, *, kernel: KernelOptions,
+              prune: PruningPreset | None) -> TrainedModel:
+    """``trained``'s views (taken back from its full model) pooled with ``new``."""
+    full = trained.full_model
     size = np.asarray(full.instance_size or [1.0] * len(full.instance_names), dtype=np.float64)
     old_feats = []
     for k in range(full.n_views):

@@ -2,8 +2,10 @@
 
 The same pose is placed over the rest of the frame, away from the mode's box,
 and scored there on the same maps; the mode's contrast is its score over the
-spread of those scores. A cluttered frame scores every placement high and
-spread, a plain one low: the contrast reads the same in both, where the score
+spread of those scores, less what the best of the frame's places for such a
+box would reach by chance. A cluttered frame scores every placement high and
+spread, a plain one low, and a small box has more places in a large frame
+than a large one: the contrast reads the same in all of them, where the score
 alone rewards the clutter (docs/history/TRUST.md).
 """
 
@@ -83,7 +85,19 @@ def background_scores(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps,
 
 def mode_contrast(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps,
                   shape: tuple[int, int], **score_options: Any) -> float:
-    """The mode's score over the spread (standard deviation, plus :data:`SPREAD_FLOOR`) of
-    its :func:`background_scores`."""
+    """The mode's score over the spread of what its pose scores elsewhere, less what the
+    best of the frame's many places would reach by chance.
+
+    With ``z`` the score over the spread (standard deviation, plus
+    :data:`SPREAD_FLOOR`) of its :func:`background_scores` and ``N`` the places the
+    frame holds for the mode's box (the frame's area over the box's, at least 1), the
+    contrast is ``sqrt(max(z**2 - 2 ln N, 0))``: where the background's scores are
+    Gaussian, ``exp(-contrast**2 / 2)`` is about the number of places in the frame that
+    score as high by chance, so one threshold reads the same for small and large objects
+    in small and large frames.
+    """
     spread = float(np.std(background_scores(hypothesis, model, maps, shape, **score_options)))
-    return float(hypothesis.score) / (spread + SPREAD_FLOOR)
+    z = float(hypothesis.score) / (spread + SPREAD_FLOOR)
+    _, _, bw, bh = hypothesis.box
+    places = max(1.0, shape[0] * shape[1] / max(bw * bh, 1.0))
+    return math.sqrt(max(z * z - 2.0 * math.log(places), 0.0))
