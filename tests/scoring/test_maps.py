@@ -149,6 +149,18 @@ def test_a_region_refuses_what_it_cannot_tabulate():
     with pytest.raises(ValueError, match="no pixel"):
         prepare_test(feats, (40, 40), **{**kw, "region": (50, 50, 60, 60)})
 
+
+def test_a_region_of_a_huge_frame_is_tabulated_where_the_whole_frame_would_not_be():
+    # A tiny scale's frame (the image divided by it) is too large to tabulate whole; a
+    # region of it is not.
+    feats = EdgeFeatures(xy=np.array([[30000.0, 20000.0]]), theta=np.array([0.3]))
+    shape = (25000, 40000)
+    kw = {"position_sigma": 2.0, "orientation_kappa": 8.0}
+    with pytest.raises(ValueError, match="over the limit"):
+        prepare_test(feats, shape, **kw)
+    part = prepare_test(feats, shape, region=(29950, 19950, 30050, 20050), **kw)
+    assert part.density.shape[1:] == (101, 101) and part.density.max() > 0
+
 def _gaussian_sum(xy, shape, sigma):
     rows, cols = np.mgrid[0:shape[0], 0:shape[1]]
     return sum(np.exp(-((cols - u) ** 2 + (rows - v) ** 2) / (2 * sigma**2)) / (2 * np.pi * sigma**2)

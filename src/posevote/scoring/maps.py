@@ -163,7 +163,9 @@ def prepare_test(features: EdgeFeatures, shape: tuple[int, int], *, position_sig
                   min(int(region[2]), w - 1), min(int(region[3]), h - 1))
         if region[2] < region[0] or region[3] < region[1]:
             raise ValueError(f"region: {region} holds no pixel of a {w} x {h} image")
-    need = density_bins * gh * gw * 4
+    # A region's maps hold the region only.
+    need = density_bins * 4 * (gh * gw if region is None
+                               else (region[2] - region[0] + 1) * (region[3] - region[1] + 1))
     if need > MAX_MAP_BYTES:
         raise ValueError(f"the test maps of a {w} x {h} image (scaled) take {need / 2**30:.1f} "
                          f"GiB, over the limit of {MAX_MAP_BYTES / 2**30:.0f} GiB; downscale the "
