@@ -220,6 +220,8 @@ def test_presets_are_listed_and_trained_from(training_folder, tmp_path):
     assert header["preset"]["name"] == "cluttered"
     assert header["preset"]["overrides"]["max_modes"] == 2
     assert header["params"]["search"]["scale_steps"] == 5
+    # The preset's level 1.8: the views shrunk by it are in the file.
+    assert header["extra"]["levels"] == [1.8] and "level_model_0" in np.load(out).files
     # An extension's group switched on with its defaults, then one of its fields.
     result = runner.invoke(cli, ["train", str(training_folder), "-o", str(out), "--param",
                                  "templates=on", "--param", "templates.half_turn=False"])

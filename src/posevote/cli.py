@@ -361,13 +361,17 @@ def train(source: Path, output: Path, layout: str, objects: str | None, cars: st
         est._settings()   # checks the stored n_jobs too, before the threads replace it
         jobs = est.n_jobs
         est.set_params(n_jobs=threads)
+        shrunk = [f"{v:g}" for v in est.search.image_levels if v > 1.0]
         with _progress(len(ts), "features") as bar:
             def read(n: int) -> None:
                 bar.update(n)
-                if bar.n == len(ts) and est.weights:   # what follows has no bar: say so
+                if bar.n == len(ts) and (est.weights or shrunk):   # no bar follows: say so
                     bar.close()
-                    click.echo(f"weighing the features of {len(ts)} views (Eq. 4; a minute "
-                               "or more past a thousand views) ...", err=True)
+                    steps = ([f"weighing the features of {len(ts)} views (Eq. 4; a minute "
+                              "or more past a thousand views)"] if est.weights else []) + (
+                        [f"learning the views shrunk for image level(s) {', '.join(shrunk)}"]
+                        if shrunk else [])
+                    click.echo(", then ".join(steps) + " ...", err=True)
 
             est.fit(list(ts.images), ts.poses, boxes=ts.boxes,
                     masks=list(ts.masks) if ts.masks else None,

@@ -248,3 +248,16 @@ def test_a_levels_model_is_the_views_shrunk_and_grows_with_them(synthetic_traini
     for name in ("xy", "theta", "weight", "view_box", "view_origin"):
         np.testing.assert_allclose(getattr(more.full_model, name),
                                    getattr(small.full_model, name), atol=1e-9, err_msg=name)
+
+
+def test_a_view_too_small_for_its_level_is_named_with_the_level():
+    from posevote import PoseEstimator
+    from posevote.inference.setup import SearchOptions
+
+    # A faint thin cross: edges as given, none once area-averaged to a quarter.
+    img = np.zeros((64, 64))
+    img[20:44, 31] = img[31, 20:44] = 0.4
+    assert PoseEstimator().fit([img, img], [0.0, 1.0]).model_.n_features > 0
+    with pytest.raises(ValueError, match=r"images\[0\] \(shrunk by 4 .* leave the level out of "
+                                         r"search.image_levels.*\): no edges found"):
+        PoseEstimator(search=SearchOptions(image_levels=(4.0, 1.0))).fit([img, img], [0.0, 1.0])

@@ -329,7 +329,8 @@ def _extract(images: list[Any], poses: ArrayLike, boxes: ArrayLike | None,
         label = str(image) if isinstance(image, (str, Path)) else f"images[{i}]"
         img = load_image(image, name=label, channels=channels)
         if shrink != 1.0:
-            label += f" (shrunk by {1.0 / shrink:g} for its image level)"
+            label += (f" (shrunk by {1.0 / shrink:g} for its image level; leave the level out "
+                      "of search.image_levels where the views are this small)")
         mask = _read_mask(label, mask_list[i], img.shape)
         box = _object_box(label, img, box_arr[i], mask)
         if shrink != 1.0:
