@@ -239,7 +239,7 @@ def test_a_shrunk_level_finds_an_object_half_the_scales_searched():
         est.set_params(search__image_levels=(3.0, 1.0)).estimate(canvas)
 
 
-def test_the_levels_on_one_image_read_its_edges_and_keypoints_once(monkeypatch):
+def test_the_levels_on_one_image_read_its_edges_keypoints_and_maps_once(monkeypatch):
     from posevote.data import toy_views
     from posevote.inference.setup import SearchOptions
 
@@ -255,9 +255,13 @@ def test_the_levels_on_one_image_read_its_edges_and_keypoints_once(monkeypatch):
                         lambda image, *a, **k: read.append(image.shape) or edges(image, *a, **k))
     monkeypatch.setattr(pipeline, "image_keypoints",
                         lambda image: read.append(("keypoints", *image.shape)) or keypoints(image))
+    narrow = pipeline.narrow_maps
+    monkeypatch.setattr(pipeline, "narrow_maps", lambda features, shape, setup, **k: read.append(
+        ("narrow", *shape)) or narrow(features, shape, setup, **k))
     est.estimate(canvas)
     assert sorted(read, key=str) == sorted([(480, 640), (240, 320), ("keypoints", 480, 640),
-                                            ("keypoints", 240, 320)], key=str)
+                                            ("keypoints", 240, 320), ("narrow", 480, 640),
+                                            ("narrow", 240, 320)], key=str)
 
 
 def test_image_levels_are_checked():

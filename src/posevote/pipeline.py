@@ -800,18 +800,26 @@ def level_states(settings: Settings, trained: TrainedModel, image: NDArray[np.fl
                  ) -> Iterator[tuple[float, EstimateState]]:
     """Each level (:func:`image_levels`) and the state before the first of ``steps`` there:
     the image at the level of its size searched with the model, or over 1 the image itself
-    with the views shrunk by the level (its edges read once for the levels that share it)."""
-    read: dict[float, tuple[NDArray[np.float64], EdgeFeatures, Built[Any]]] = {}
+    with the views shrunk by the level (its edges, keypoints and narrow maps read once for
+    the levels that share it)."""
+    read: dict[float, tuple[NDArray[np.float64], EdgeFeatures, Built[Any],
+                            dict[tuple[float, float], Built[TestMaps]]]] = {}
     for level in image_levels(settings, image.shape):
         zoom = min(level, 1.0)
         if zoom not in read:
             scaled = level_image(image, zoom)
             read[zoom] = (scaled, extract_edges(scaled, level_edges(edges, image.shape, zoom),
                                                 training=False),
-                          Built(partial(image_keypoints, scaled)))
-        scaled, features, keypoints = read[zoom]
-        yield level, begin(settings, trained.at_level(level), scaled, features, steps=steps,
-                           camera=level_camera(camera, zoom), keypoints=keypoints)
+                          Built(partial(image_keypoints, scaled)), {})
+        scaled, features, keypoints, narrow = read[zoom]
+        state = begin(settings, trained.at_level(level), scaled, features, steps=steps,
+                      camera=level_camera(camera, zoom), keypoints=keypoints)
+        # The narrow maps read the features and the kernel only: the same for both models.
+        kernel = (state.setup.position_sigma, state.setup.edge_spacing)
+        if kernel in narrow:
+            state = replace(state, narrow=narrow[kernel])
+        narrow[kernel] = state.narrow
+        yield level, state
 
 
 def estimate_levels(settings: Settings, trained: TrainedModel, image: NDArray[np.float64],
