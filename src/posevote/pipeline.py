@@ -665,11 +665,8 @@ def search_setup(settings: Settings, trained: TrainedModel) -> SearchSetup:
 
 def begin(settings: Settings, trained: TrainedModel, image: NDArray[np.float64],
           features: EdgeFeatures, *, steps: Sequence[Step], camera: Camera | None = None,
-          progress: Callable[[int], None] | None = None,
-          keypoints: Built[tuple[NDArray[np.float64], NDArray[np.uint8]]] | None = None
-          ) -> EstimateState:
-    """The state before the first of ``steps``, on the image's features (and the whole
-    image's ``keypoints``, where another state on the same image reads them too)."""
+          progress: Callable[[int], None] | None = None) -> EstimateState:
+    """The state before the first of ``steps``, on the image's features."""
     setup = search_setup(settings, trained)
     shape = (int(image.shape[0]), int(image.shape[1]))
     return EstimateState(settings=settings, trained=trained, setup=setup,
@@ -677,8 +674,7 @@ def begin(settings: Settings, trained: TrainedModel, image: NDArray[np.float64],
                          camera=camera, progress=progress,
                          narrow=Built(partial(narrow_maps, features, shape, setup)),
                          grey=Built(partial(np.asarray, image, dtype=np.float32)),
-                         keypoints=Built(partial(image_keypoints, image)) if keypoints is None
-                         else keypoints)
+                         keypoints=Built(partial(image_keypoints, image)))
 
 
 def run(state: EstimateState, steps: Sequence[Step]) -> EstimateState:
@@ -802,23 +798,24 @@ def level_states(settings: Settings, trained: TrainedModel, image: NDArray[np.fl
     the image at the level of its size searched with the model, or over 1 the image itself
     with the views shrunk by the level (its edges, keypoints and narrow maps read once for
     the levels that share it)."""
-    read: dict[float, tuple[NDArray[np.float64], EdgeFeatures, Built[Any],
-                            dict[tuple[float, float], Built[TestMaps]]]] = {}
+    first: dict[float, EstimateState] = {}
     for level in image_levels(settings, image.shape):
         zoom = min(level, 1.0)
-        if zoom not in read:
+        if zoom in first:
+            shared = first[zoom]
+            state = begin(settings, trained.at_level(level), shared.image, shared.features,
+                          steps=steps, camera=shared.camera)
+            # The keypoints read the image, the narrow maps its features and the kernel only.
+            same = (state.setup.position_sigma, state.setup.edge_spacing) == (
+                shared.setup.position_sigma, shared.setup.edge_spacing)
+            state = replace(state, keypoints=shared.keypoints,
+                            narrow=shared.narrow if same else state.narrow)
+        else:
             scaled = level_image(image, zoom)
-            read[zoom] = (scaled, extract_edges(scaled, level_edges(edges, image.shape, zoom),
-                                                training=False),
-                          Built(partial(image_keypoints, scaled)), {})
-        scaled, features, keypoints, narrow = read[zoom]
-        state = begin(settings, trained.at_level(level), scaled, features, steps=steps,
-                      camera=level_camera(camera, zoom), keypoints=keypoints)
-        # The narrow maps read the features and the kernel only: the same for both models.
-        kernel = (state.setup.position_sigma, state.setup.edge_spacing)
-        if kernel in narrow:
-            state = replace(state, narrow=narrow[kernel])
-        narrow[kernel] = state.narrow
+            state = first[zoom] = begin(
+                settings, trained.at_level(level), scaled,
+                extract_edges(scaled, level_edges(edges, image.shape, zoom), training=False),
+                steps=steps, camera=level_camera(camera, zoom))
         yield level, state
 
 
@@ -842,12 +839,10 @@ def objects_at_levels(settings: Settings, trained: TrainedModel, image: NDArray[
     """:func:`estimate_objects` at each level, merged: best score first, a box overlapping
     one kept (IoU over :data:`OBJECT_OVERLAP`) dropped, at most ``max_objects``."""
     found: list[PoseEstimate] = []
-    levels = 0
     for level, state in level_states(settings, trained, image, edges, steps, camera=camera):
         found += [from_level(e, level)
                   for e in estimate_objects(state, steps, max_objects, start=start)]
-        levels += 1
-    if levels == 1:
+    if len(image_levels(settings, image.shape)) == 1:
         return found
     kept: list[PoseEstimate] = []
     for estimate in sorted(found, key=lambda e: -e.best.detection_score if e.best else 0.0):

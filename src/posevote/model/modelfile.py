@@ -46,6 +46,7 @@ from numpy.typing import NDArray
 from posevote._io import atomic_open, parse_json
 from posevote.camera import check_object_height
 from posevote.features.hog import descriptor_length
+from posevote.inference.setup import MAX_LEVEL
 from posevote.model.density import PoseModel
 from posevote.model.outline import OUTLINE_ANGLES
 from posevote.model.training import AppearanceModel, TrainedModel
@@ -276,8 +277,8 @@ def _read(path: str, source: Path | io.BytesIO, *, nested: bool = False
         raise ValueError(f"{path}: corrupt model file ({exc})") from None
     levels = extra.get("levels", [])
     if not (isinstance(levels, list) and len(levels) == len(packed) and not (nested and levels)
-            and all(isinstance(v, (int, float)) and not isinstance(v, bool) and 1.0 < v <= 4.0
-                    for v in levels)):
+            and all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                    and 1.0 < v <= MAX_LEVEL for v in levels)):
         raise ValueError(f"{path}: corrupt model file (levels {levels!r} for {len(packed)} "
                          "shrunk models)")
     shrunk = tuple((float(level), _read(f"{path} (its level {level:g} model)",

@@ -271,21 +271,17 @@ def train_model(images: Sequence[str | Path | NDArray], poses: ArrayLike, *,
         raise TypeError(f"images must be a sequence of image paths or arrays, got the single "
                         f"path {str(images)!r} (read a training folder with read_poses_csv)")
     images = list(images)
-    trained = None
-    shrunk = []
-    for level in (1.0, *sorted({float(v) for v in levels if v > 1.0})):
+
+    def learn(shrink: float) -> TrainedModel:
         views = _extract(images, poses, boxes, masks, instances, edges=edges, morph=morph,
-                         collect=collect, progress=progress if level == 1.0 else None,
+                         collect=collect, progress=progress if shrink == 1.0 else None,
                          channels=channels, n_threads=n_threads, origins=origins,
-                         shrink=1.0 / level)
-        pooled = _pool(views, category=category, kernel=kernel, prune=prune, height=height,
-                       n_threads=n_threads)
-        if trained is None:
-            trained = pooled
-        else:
-            shrunk.append((level, pooled))
-    assert trained is not None
-    return replace(trained, shrunk=tuple(shrunk))
+                         shrink=shrink)
+        return _pool(views, category=category, kernel=kernel, prune=prune, height=height,
+                     n_threads=n_threads)
+
+    return replace(learn(1.0), shrunk=tuple(
+        (level, learn(1.0 / level)) for level in sorted({float(v) for v in levels if v > 1.0})))
 
 
 @dataclass(kw_only=True, eq=False)
