@@ -20,6 +20,7 @@ from posevote._options import Options
 from posevote.features.edges import EdgeFeatures
 from posevote.model.density import PoseModel
 from posevote.model.kernels import ORIENTATION_KAPPA
+from posevote.model.training import MAX_LEVEL
 from posevote.scoring.maps import MAX_MAP_BYTES, TestMaps, prepare_test, scaled_features
 from posevote.scoring.score import ScoreSetup
 
@@ -39,8 +40,6 @@ CHANCE_WIDTH = 4.0
 #: The scales a search may be given (``SearchOptions.scale_range``): below, an
 #: object of the training size is a few pixels; above, its maps outgrow memory.
 SCALE_LIMITS = (0.05, 20.0)
-#: The largest image level: the training views shrunk by it still hold edges.
-MAX_LEVEL = 4.0
 
 
 @dataclass(frozen=True, kw_only=True, repr=False)
@@ -91,7 +90,8 @@ class SearchOptions(Options):
     calibration : (float, float, float), default (1, 0, 0)
         ``(a, b, c)``: the best mode's probability is
         ``sigmoid(a logit(p) + b ln(score) + c)`` of its share ``p`` of the
-        search's posterior over viewpoints and its score
+        search's posterior over viewpoints and its detection score (the contrast
+        where measured, else its score)
         (:func:`posevote.refinement.probability.calibrated`); each preset's
         is fitted on its development folds, on the estimates it reports (over
         its ``min_score``) or on every one, whichever calibrates the reported

@@ -46,10 +46,9 @@ from numpy.typing import NDArray
 from posevote._io import atomic_open, parse_json
 from posevote.camera import check_object_height
 from posevote.features.hog import descriptor_length
-from posevote.inference.setup import MAX_LEVEL
 from posevote.model.density import PoseModel
 from posevote.model.outline import OUTLINE_ANGLES
-from posevote.model.training import AppearanceModel, TrainedModel
+from posevote.model.training import MAX_LEVEL, AppearanceModel, TrainedModel
 
 FORMAT_NAME = "posevote-model"
 FORMAT_VERSION = 6

@@ -141,6 +141,10 @@ class TrainedModel:
                          "again with these search.image_levels")
 
 
+#: The largest image level (``SearchOptions.image_levels``): the training views shrunk by it
+#: still hold edges.
+MAX_LEVEL = 4.0
+
 #: Pose angles beyond this (radians) are refused: they are degrees given as radians.
 MAX_POSE_RAD = 4.0 * np.pi
 
