@@ -3,8 +3,9 @@ development folds that hold the wrong answers.
 
 The best mode's probability is ``sigmoid(a logit(share) + b ln(score) + c)``
 of its share of the posterior over viewpoints (after the appearance step, of
-its HOG front/back evidence) and its score
-(:func:`posevote.refinement.probability.calibrated`). For each preset, its
+its HOG front/back evidence) and its detection score (the contrast where the
+preset measures it, else its score;
+:func:`posevote.refinement.probability.calibrated`). For each preset, its
 development estimates are made with the share itself (calibration
 ``(1, 0, 0)``), every estimate reported (no threshold):
 
@@ -122,10 +123,11 @@ def frames_rows(preset: str, data: str, runs: Path, jobs: int) -> list[dict[str,
         source = "epfl-cv" if r.get("size") is None and r["kind"] == "object" else \
             f"frames, {r['kind']}"
         # A frames record's score is what the threshold reads (the contrast, where the
-        # preset measures it); the probability reads the best mode's own score.
+        # preset measures it: the frame's best); the probability reads the best mode's own.
         out.append({"source": source, "fold": r["object"] % FOLDS,
                     "share": r.get("probability") or 0.0,
-                    "score": r.get("pose_score", r["score"]), "detection": r["score"],
+                    "score": r.get("detection", r.get("pose_score", r["score"])),
+                    "detection": r["score"],
                     "right": bool(right)})
     return out
 

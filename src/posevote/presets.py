@@ -101,7 +101,7 @@ PRESETS: dict[str, Preset] = {p.name: p for p in (
                 "search": SearchOptions(inplane_range_deg=(-30.0, 30.0), inplane_step_deg=5.0,
                                         scale_range=(0.7, 1.3), scale_steps=7,
                                         object_kernel=True, chance_correction=True,
-                                        density_cap=0.5, calibration=(0.328, -1.343, -1.944),
+                                        density_cap=0.5, calibration=(0.346, 0.830, -0.539),
                                         image_levels=(1.8, 1.0, 0.5), contrast=True),
                 "refine": RefineOptions(rescale=False, local="profile", share_scale=True,
                                         keypoints=True),

@@ -118,6 +118,13 @@ def test_calibration_sets_the_best_mode_and_scales_the_others_to_what_is_left():
     # A low score takes the best mode's probability down whatever its share.
     doubt = with_probabilities(hyps, probes, (1.0, 4.0, 0.0))
     assert doubt[0].probability < raw[0].probability
+    # Where the contrast is measured, the detection score it reads is the contrast.
+    from dataclasses import replace
+
+    measured = [replace(hyps[0], contrast=7.0), hyps[1]]
+    read = with_probabilities(measured, probes, (1.0, 0.5, -1.0))
+    assert read[0].probability == pytest.approx(float(calibrated(raw[0].probability, 7.0,
+                                                                 (1.0, 0.5, -1.0))))
 
 
 @pytest.mark.parametrize("bad", [(1.0, 0.0), (-0.5, 0.0, 0.0), (1.0, float("nan"), 0.0),

@@ -219,7 +219,8 @@ def frame_record(est: PoseEstimator, item: dict[str, Any]) -> dict[str, Any]:
     best = result.best
     if best is not None:
         rec.update(probability=best.probability, estimate_deg=best.azimuth_deg,
-                   box=list(best.box), scale_estimate=best.scale, pose_score=best.score)
+                   box=list(best.box), scale_estimate=best.scale, pose_score=best.score,
+                   detection=best.detection_score)
         if truth:
             period = math.pi if item["object"] in HALF_TURN else 2.0 * math.pi
             rec["iou"] = float(box_iou(best.box, truth["truth_box"]))

@@ -107,7 +107,8 @@ IDENTITY = (1.0, 0.0, 0.0)
 
 def calibrated(share: ArrayLike, score: ArrayLike,
                calibration: tuple[float, float, float]) -> NDArray[np.float64]:
-    """The probability that a best mode is right, ``sigmoid(a logit(share) + b ln(score) + c)``.
+    """The probability that a best mode is right, ``sigmoid(a logit(share) + b ln(score) + c)``
+    (``score``: its detection score, the contrast where measured).
 
     Parameters
     ----------
@@ -156,7 +157,7 @@ def with_probabilities(hypotheses: Sequence[Hypothesis], probes: ProbeSet,
     if best_share is not None:
         p[0] = best_share
         p[1:] *= min(1.0, (1.0 - best_share) / max(float(p[1:].sum()), _TINY))
-    best = float(calibrated(p[0], hypotheses[0].score, calibration))
+    best = float(calibrated(p[0], hypotheses[0].detection_score, calibration))
     rest = float(p[1:].sum())
     if tuple(calibration) != IDENTITY and rest > 0.0:
         p[1:] *= min(1.0, (1.0 - best) / rest)
