@@ -365,3 +365,27 @@ def test_refine_viewpoint_reads_the_viewpoint_between_training_views(line_drawin
                        box_sizes=np.full((5, 2), 46.0), instances=[0] * 5,
                        instance_names=["toy"], reference_size=46.0)
     assert refine_viewpoint(start, ring, maps, setup, lambda poses: np.ones(len(poses))) is start
+
+
+def test_refine_viewpoint_keeps_the_scale_within_its_bounds(line_drawing):
+    segments, _ = line_drawing
+    grid = [(a, e) for a in range(-20, 21, 10) for e in np.arange(-15.0, 15.1, 7.5)]
+    views = [_rectangle(segments, a, e) for a, e in grid]
+    model = build_model([EdgeFeatures(xy=v.xy + 50.0, theta=v.theta) for v in views],
+                        poses=np.radians([[a, e, 0.0] for a, e in grid]),
+                        centers=np.full((len(grid), 2), 50.0), scales=np.ones(len(grid)),
+                        box_sizes=np.full((len(grid), 2), 46.0), instances=[0] * len(grid),
+                        instance_names=["toy"], reference_size=46.0)
+    setup = SearchSetup(options=SearchOptions(), position_sigma=2.0, edge_spacing=2.0,
+                        viewpoint_kappa=300.0)
+    # The object at 0.6 of the starting pose's size: unbounded, the polishes shrink it.
+    view = _rectangle(segments, 4.0, 3.0)
+    maps = narrow_maps(EdgeFeatures(xy=0.6 * view.xy + 80.0, theta=view.theta), (160, 160),
+                       setup)
+    start = Hypothesis(azimuth=0.0, elevation=0.0, inplane=0.0, scale=1.0, position=(80.0, 80.0),
+                       box=(57.0, 57.0, 46.0, 46.0), score=1.0, refined=True)
+    free = refine_viewpoint(start, model, maps, setup, lambda poses: np.ones(len(poses)))
+    assert free.scale < 0.85
+    bounded = refine_viewpoint(start, model, maps, setup, lambda poses: np.ones(len(poses)),
+                               scale_bounds=(0.85, 1.2))
+    assert 0.85 - 1e-9 <= bounded.scale <= 1.2 + 1e-9

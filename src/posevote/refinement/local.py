@@ -514,7 +514,8 @@ def profile_refine(probes: ProbeSet, viewpoint: int, model: PoseModel, maps: Tes
 
 
 def refine_viewpoint(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps,
-                     setup: ScoreSetup, weigh: PoseWeights) -> Hypothesis:
+                     setup: ScoreSetup, weigh: PoseWeights, *,
+                     scale_bounds: tuple[float, float] | None = None) -> Hypothesis:
     """A pose's viewpoint read from the training views around it, as :func:`profile_refine`
     reads the found pose's over the sphere (beyond the paper).
 
@@ -538,6 +539,10 @@ def refine_viewpoint(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps,
     setup : ScoreSetup
     weigh : callable
         Each pose's weight by its grey levels (:data:`PoseWeights`).
+    scale_bounds : (float, float), optional
+        Every polish keeps the scale within these (:func:`polish_pose`): a pose a few
+        pixels across moves its scale far in one polish, and the narrow score grows as
+        a model shrinks onto dense edges.
 
     Returns
     -------
@@ -554,6 +559,7 @@ def refine_viewpoint(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps,
                           >= np.cos(FIT_RADIUS_STEPS * median_spacing(directions)))
     if len(near) < 5:
         return hypothesis
+    kw = {**kw, "scale_bounds": scale_bounds}
     polished = [polish_pose(replace(hypothesis, azimuth=float(model.view_azimuth[i]),
                                     elevation=float(model.view_elevation[i])), model, maps, **kw)
                 for i in near]

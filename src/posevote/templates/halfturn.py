@@ -48,6 +48,14 @@ from posevote.scoring.score import ScoreSetup, score_options
 HALF_TURN_SCALES = (0.85, 1.0, 1 / 0.85)
 
 
+def _within_a_step(pose: Hypothesis) -> tuple[float, float]:
+    """The scales a pose's viewpoint reading may polish it to: one of
+    :data:`HALF_TURN_SCALES`' steps either way (a few-pixel pose ran off to a tenth of
+    its size, where the narrow score of a shrunk model grows on dense edges)."""
+    low, high = min(HALF_TURN_SCALES), max(HALF_TURN_SCALES)
+    return pose.scale * low, pose.scale * high
+
+
 def half_turn(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps, setup: ScoreSetup,
               weigh: PoseWeights, *,
               resemble: Callable[[Hypothesis], float], features: EdgeFeatures,
@@ -88,14 +96,17 @@ def half_turn(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps, setup: S
     # Over the sphere both sides' viewpoints are read between the training views
     # alike; a turntable's found pose was fitted on the search's finer grid.
     sphere = bool(np.ptp(model.view_elevation) > 0)
-    found = (refine_viewpoint(hypothesis, model, maps, setup, weigh) if sphere
+    found = (refine_viewpoint(hypothesis, model, maps, setup, weigh,
+                              scale_bounds=_within_a_step(hypothesis)) if sphere
              else polish_pose(hypothesis, model, maps, **opts))
     kept = replace(found, score=hypothesis.score) if sphere else hypothesis
     turned = float(np.mod(hypothesis.azimuth + np.pi, 2.0 * np.pi))
     candidates = [polish_pose(replace(hypothesis, azimuth=turned, scale=hypothesis.scale * f),
                               model, maps, **opts) for f in HALF_TURN_SCALES]
     product = np.array([h.score for h in candidates]) * weigh(candidates)
-    other = refine_viewpoint(candidates[int(np.argmax(product))], model, maps, setup, weigh)
+    chosen = candidates[int(np.argmax(product))]
+    other = refine_viewpoint(chosen, model, maps, setup, weigh,
+                             scale_bounds=_within_a_step(chosen))
     other_weight = float(weigh([other])[0])
     if not other.score * other_weight > 0:
         return kept, False
