@@ -339,8 +339,9 @@ def _rectangle(segments, azimuth, elevation):
     return segments([(c[k], c[(k + 1) % 4]) for k in range(4)] + [([-w, bar], [w, bar])])
 
 
-def test_refine_viewpoint_reads_the_viewpoint_between_training_views(line_drawing):
-    segments, _ = line_drawing
+def _rectangle_sphere(segments):
+    """The rectangle's views every 10 deg of azimuth and 7.5 deg of elevation, their model
+    and a narrow kernel's setup."""
     grid = [(a, e) for a in range(-20, 21, 10) for e in np.arange(-15.0, 15.1, 7.5)]
     views = [_rectangle(segments, a, e) for a, e in grid]
     model = build_model([EdgeFeatures(xy=v.xy + 50.0, theta=v.theta) for v in views],
@@ -350,6 +351,12 @@ def test_refine_viewpoint_reads_the_viewpoint_between_training_views(line_drawin
                         instance_names=["toy"], reference_size=46.0)
     setup = SearchSetup(options=SearchOptions(), position_sigma=2.0, edge_spacing=2.0,
                         viewpoint_kappa=300.0)
+    return views, model, setup
+
+
+def test_refine_viewpoint_reads_the_viewpoint_between_training_views(line_drawing):
+    segments, _ = line_drawing
+    views, model, setup = _rectangle_sphere(segments)
     view = _rectangle(segments, 4.0, 3.0)
     maps = narrow_maps(EdgeFeatures(xy=view.xy + 80.0, theta=view.theta), (160, 160), setup)
     start = Hypothesis(azimuth=0.0, elevation=0.0, inplane=0.0, scale=1.0, position=(80.0, 80.0),
@@ -369,15 +376,7 @@ def test_refine_viewpoint_reads_the_viewpoint_between_training_views(line_drawin
 
 def test_refine_viewpoint_keeps_the_scale_within_its_bounds(line_drawing):
     segments, _ = line_drawing
-    grid = [(a, e) for a in range(-20, 21, 10) for e in np.arange(-15.0, 15.1, 7.5)]
-    views = [_rectangle(segments, a, e) for a, e in grid]
-    model = build_model([EdgeFeatures(xy=v.xy + 50.0, theta=v.theta) for v in views],
-                        poses=np.radians([[a, e, 0.0] for a, e in grid]),
-                        centers=np.full((len(grid), 2), 50.0), scales=np.ones(len(grid)),
-                        box_sizes=np.full((len(grid), 2), 46.0), instances=[0] * len(grid),
-                        instance_names=["toy"], reference_size=46.0)
-    setup = SearchSetup(options=SearchOptions(), position_sigma=2.0, edge_spacing=2.0,
-                        viewpoint_kappa=300.0)
+    _, model, setup = _rectangle_sphere(segments)
     # The object at 0.6 of the starting pose's size: unbounded, the polishes shrink it.
     view = _rectangle(segments, 4.0, 3.0)
     maps = narrow_maps(EdgeFeatures(xy=0.6 * view.xy + 80.0, theta=view.theta), (160, 160),
