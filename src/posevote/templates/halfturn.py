@@ -48,12 +48,13 @@ from posevote.scoring.score import ScoreSetup, score_options
 HALF_TURN_SCALES = (0.85, 1.0, 1 / 0.85)
 
 
-def _within_a_step(pose: Hypothesis) -> tuple[float, float]:
-    """The scales a pose's viewpoint reading may polish it to: one of
-    :data:`HALF_TURN_SCALES`' steps either way (a few-pixel pose ran off to a tenth of
-    its size, where the narrow score of a shrunk model grows on dense edges)."""
+def _within_reach(pose: Hypothesis) -> tuple[float, float]:
+    """The scales a pose's viewpoint reading may polish it to: two of
+    :data:`HALF_TURN_SCALES`' steps either way, past what a polish moves a pose of
+    ordinary size (a few-pixel pose ran off to a third of its size, where the narrow
+    score of a shrunk model grows on dense edges; one step lost on the capture check)."""
     low, high = min(HALF_TURN_SCALES), max(HALF_TURN_SCALES)
-    return pose.scale * low, pose.scale * high
+    return pose.scale * low**2, pose.scale * high**2
 
 
 def half_turn(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps, setup: ScoreSetup,
@@ -97,7 +98,7 @@ def half_turn(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps, setup: S
     # alike; a turntable's found pose was fitted on the search's finer grid.
     sphere = bool(np.ptp(model.view_elevation) > 0)
     found = (refine_viewpoint(hypothesis, model, maps, setup, weigh,
-                              scale_bounds=_within_a_step(hypothesis)) if sphere
+                              scale_bounds=_within_reach(hypothesis)) if sphere
              else polish_pose(hypothesis, model, maps, **opts))
     kept = replace(found, score=hypothesis.score) if sphere else hypothesis
     turned = float(np.mod(hypothesis.azimuth + np.pi, 2.0 * np.pi))
@@ -106,7 +107,7 @@ def half_turn(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps, setup: S
     product = np.array([h.score for h in candidates]) * weigh(candidates)
     chosen = candidates[int(np.argmax(product))]
     other = refine_viewpoint(chosen, model, maps, setup, weigh,
-                             scale_bounds=_within_a_step(chosen))
+                             scale_bounds=_within_reach(chosen))
     other_weight = float(weigh([other])[0])
     if not other.score * other_weight > 0:
         return kept, False
