@@ -51,8 +51,9 @@ HALF_TURN_SCALES = (0.85, 1.0, 1 / 0.85)
 def _within_reach(pose: Hypothesis) -> tuple[float, float]:
     """The scales a pose's viewpoint reading may polish it to: two of
     :data:`HALF_TURN_SCALES`' steps either way, past what a polish moves a pose of
-    ordinary size (a few-pixel pose ran off to a third of its size, where the narrow
-    score of a shrunk model grows on dense edges; one step lost on the capture check)."""
+    ordinary size (one step bound those too), short of where a pose a few pixels
+    across shrinks onto dense edges, on which a shrinking model's narrow score grows
+    (docs/history/TRUST.md)."""
     low, high = min(HALF_TURN_SCALES), max(HALF_TURN_SCALES)
     return pose.scale * low**2, pose.scale * high**2
 
