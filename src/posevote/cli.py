@@ -362,13 +362,14 @@ def train(source: Path, output: Path, layout: str, objects: str | None, cars: st
         jobs = est.n_jobs
         est.set_params(n_jobs=threads)
         shrunk = [f"{v:g}" for v in est.search.image_levels if v > 1.0]
-        done = [0]
+        done = 0
         with _progress(len(ts), "features") as bar:
             def read(n: int) -> None:
+                nonlocal done
                 bar.update(n)
                 # Counted here: a bar off (no terminal) counts nothing.
-                done[0] += n
-                if done[0] == len(ts) and (est.weights or shrunk):   # no bar follows: say so
+                done += n
+                if done == len(ts) and (est.weights or shrunk):   # no bar follows: say so
                     bar.close()
                     steps = ([f"weighing the features of {len(ts)} views (Eq. 4; a minute "
                               "or more past a thousand views)"] if est.weights else []) + (
