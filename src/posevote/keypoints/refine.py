@@ -203,8 +203,9 @@ def keypoint_locate(hypothesis: Hypothesis, model: PoseModel, image: NDArray[np.
 
     The image's keypoints (at most :data:`LOCATE_KEYPOINTS` per 640 x 480 of it, SIFT's
     strongest) are matched to each view's (each view keypoint's nearest test keypoint,
-    Lowe's ratio against the second nearest), and a similarity fitted by RANSAC takes each
-    view's matched keypoints onto the image; the view of most inliers places the object
+    Lowe's ratio against the second nearest; one per test keypoint), and a similarity
+    fitted by RANSAC takes each view's matched keypoints onto the image; the view of most
+    inliers places the object
     (position, scale, in-plane angle from the similarity). It replaces the mode where it
     holds at least :data:`MIN_INLIERS`, :data:`TURN_RATIO` times the inliers of any view in
     the mode's own box, and its box overlaps the mode's by IoU under 0.5 (the mode is
@@ -247,14 +248,17 @@ def keypoint_locate(hypothesis: Hypothesis, model: PoseModel, image: NDArray[np.
     matcher = cv2.BFMatcher(cv2.NORM_L2)
     knn = matcher.knnMatch(model.keypoint_descriptor.astype(np.float32),
                            desc.astype(np.float32), k=2)
-    pairs = np.array([(m[0].trainIdx, m[0].queryIdx) for m in knn
-                      if len(m) == 2 and m[0].distance < MATCH_RATIO * m[1].distance],
-                     dtype=np.int64).reshape(-1, 2)
+    kept = sorted((m[0].distance, m[0].trainIdx, m[0].queryIdx) for m in knn
+                  if len(m) == 2 and m[0].distance < MATCH_RATIO * m[1].distance)
+    pairs = np.array([(t, v) for _, t, v in kept], dtype=np.int64).reshape(-1, 2)
     best: tuple[int, int, NDArray[Any]] | None = None
     counts = np.zeros(model.n_views, dtype=np.int64)
     view_of = model.keypoint_view[pairs[:, 1]]
     for k in np.unique(view_of):
         mine = pairs[view_of == k]
+        # One view keypoint per test keypoint (the nearest): clutter matched many onto one
+        # point, which a similarity shrunk to that point takes as inliers.
+        mine = mine[np.sort(np.unique(mine[:, 0], return_index=True)[1])]
         if len(mine) < MIN_INLIERS:
             continue
         tolerance = INLIER_SHARE * float(np.hypot(*model.view_box[k]))
