@@ -205,11 +205,10 @@ def keypoint_locate(hypothesis: Hypothesis, model: PoseModel, image: NDArray[np.
     strongest) are matched to each view's (each view keypoint's nearest test keypoint,
     Lowe's ratio against the second nearest; one per test keypoint), and a similarity
     fitted by RANSAC takes each view's matched keypoints onto the image; the view of most
-    inliers places the object
-    (position, scale, in-plane angle from the similarity). It replaces the mode where it
-    holds at least :data:`MIN_INLIERS`, :data:`TURN_RATIO` times the inliers of any view in
-    the mode's own box, and its box overlaps the mode's by IoU under 0.5 (the mode is
-    elsewhere).
+    inliers places the object (position, scale, in-plane angle from the similarity). It
+    replaces the mode where it holds at least :data:`MIN_INLIERS`, :data:`TURN_RATIO` times
+    the inliers of any view in the mode's own box, and its box overlaps the mode's by IoU
+    under 0.5 (the mode is elsewhere).
 
     Parameters
     ----------
