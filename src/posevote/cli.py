@@ -529,7 +529,6 @@ def _contrast(b: Any) -> str:
     return "" if math.isnan(b.contrast) else f"contrast {b.contrast:.2f}  "
 
 
-
 def _estimate_one(est: Any, image: Path, *, as_json: bool, overlay: Path | None,
                   camera: Any) -> None:
     """One image: the pose, its modes and (given a camera) its place, as text or JSON."""

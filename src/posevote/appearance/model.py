@@ -160,8 +160,6 @@ def train_box_regression(descriptors: NDArray[np.float32], offsets: NDArray[np.f
     return out
 
 
-
-
 class AppearanceCollector:
     """Gathers the training images' descriptors while ``fit`` reads them, one image at a time
     (a :class:`~posevote.model.training.ViewCollector`).

@@ -106,10 +106,6 @@ def viewpoint_grid(model: PoseModel, *, subdivisions: int = 1, step: float | Non
     return fine, np.full_like(fine, el[0])
 
 
-
-
-
-
 # A model's search features by viewpoint: the grid's viewpoints recur in every
 # image, and collecting them is a good part of a viewpoint's searches.
 _PROBE_CACHE: weakref.WeakKeyDictionary[PoseModel, dict[tuple[Any, ...], tuple[

@@ -191,13 +191,6 @@ def accumulate_votes_reference(train_xy, train_theta, train_w, alpha, scale, tes
 # --- kernel 2: exact score --------------------------------------------------------
 
 
-
-
-
-
-
-
-
 # --- driver ---------------------------------------------------------------------
 
 @numba.njit(cache=True, nogil=True)
@@ -292,10 +285,6 @@ def blur_taps(sigma_cells: float) -> NDArray[np.float64]:
     x = np.arange(-r, r + 1, dtype=np.float64)
     taps = np.exp(-x * x / (2.0 * max(sigma_cells, 1e-3) ** 2))
     return taps / taps.sum()
-
-
-
-
 
 
 _POLISH_RADIUS = 8
@@ -529,8 +518,6 @@ def polish_translations(maps: TestMaps, train_xy: NDArray[np.float64],
                       maps.density, maps.frame, np.ascontiguousarray(score, dtype=np.float64),
                       np.ascontiguousarray(translation, dtype=np.float64), out_score, out_t)
     return out_score, out_t
-
-
 
 
 def strongest_voters(weight: NDArray[np.float64], max_voters: int | None) -> NDArray[np.int64]:

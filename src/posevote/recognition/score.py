@@ -120,12 +120,6 @@ def median_spacing_reference(xy: NDArray[np.float64]) -> float:
     return float(np.median(cKDTree(xy).query(xy, k=2)[0][:, 1])) if len(xy) > 1 else 1.0
 
 
-
-
-
-
-
-
 def recognition_margin(scores: NDArray[np.float64]) -> tuple[int, float]:
     """The best instance and its score over the runner-up's (inf if that is 0)."""
     order = np.argsort(-scores, kind="stable")

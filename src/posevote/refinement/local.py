@@ -115,10 +115,6 @@ def polish_pose(hypothesis: Hypothesis, model: PoseModel, maps: TestMaps, *,
                    score=float(best))
 
 
-
-
-
-
 #: The compass search starts with steps of this many units (about a pixel at
 #: the model's typical radius) and stops below ``_COMPASS_LAST``; at most
 #: ``_COMPASS_EVALS`` evaluations.
@@ -370,8 +366,6 @@ def maps_around(features: EdgeFeatures, shape: tuple[int, int], setup: ScoreSetu
     region = (int(np.floor(u - reach)), int(np.floor(v - reach)),
               int(np.ceil(u + reach)), int(np.ceil(v + reach)))
     return narrow_maps(scaled, (h, w), setup, scale=factor, region=region)
-
-
 
 
 def start_near(probes: ProbeSet, viewpoint: int, anchor: Hypothesis) -> Hypothesis:
