@@ -188,9 +188,6 @@ def accumulate_votes_reference(train_xy, train_theta, train_w, alpha, scale, tes
     return acc
 
 
-# --- kernel 2: exact score --------------------------------------------------------
-
-
 # --- driver ---------------------------------------------------------------------
 
 @numba.njit(cache=True, nogil=True)
