@@ -137,32 +137,31 @@ def test_a_reading_along_the_ring_keeps_the_fits_elevation(turning, cylinder):
 
 def test_clutter_matched_onto_a_few_keypoints_places_nothing(turning, cylinder, monkeypatch):
     # Three test keypoints a few pixels apart, each the centre of a third of the views'
-    # descriptors: a similarity that shrinks a view onto one of them holds that third as
-    # inliers, unless each test keypoint counts once.
+    # descriptors, and keypoints that match nothing (a descriptor far from every view's).
     model = turning.full_model_
     criteria = (cv2.TERM_CRITERIA_MAX_ITER, 20, 0.0)
     _, _, centres = cv2.kmeans(model.keypoint_descriptor.astype(np.float32), 3, None,
                                criteria, 1, cv2.KMEANS_PP_CENTERS)
-    # Besides them, keypoints that match nothing (a descriptor far from every view's).
     far = np.column_stack([np.arange(20.0, 380.0, 60.0), np.full(6, 300.0)])
     keypoints = (np.vstack([[[100.0, 100.0], [103.0, 100.0], [100.0, 103.0]], far]),
                  np.vstack([np.clip(np.round(centres), 0, 255),
                             np.full((6, 128), 255.0)]).astype(np.uint8))
+    fit = cv2.estimateAffinePartial2D
+
+    def shrunk(view_xy, test_xy, **kw):
+        # RANSAC shrinks a view onto one of the three points, holding a third of its
+        # matches; on a real frame its scale came out 3e-20, not 0.
+        fitted, inlier = fit(view_xy, test_xy, **kw)
+        if fitted is not None and np.hypot(*fitted[:, 0]) < 1e-6:
+            fitted = np.column_stack([1e-20 * np.eye(2), fitted[:, 2]])
+        return fitted, inlier
+
+    monkeypatch.setattr("posevote.keypoints.refine.cv2.estimateAffinePartial2D", shrunk)
     view, _ = cylinder(np.radians(70.0))
     pose = turning.set_params(refine__keypoints=False).estimate(view).best
     turning.set_params(refine__keypoints=True)
     away = replace(pose, position=(40.0, 40.0), box=(10.0, 10.0, 60.0, 60.0))
-    fitted_onto = []
-    fit = cv2.estimateAffinePartial2D
-
-    def record(view_xy, test_xy, **kw):
-        fitted_onto.append(test_xy)
-        return fit(view_xy, test_xy, **kw)
-
-    monkeypatch.setattr("posevote.keypoints.refine.cv2.estimateAffinePartial2D", record)
     assert keypoint_locate(away, model, np.zeros((320, 400)), keypoints=keypoints) is None
-    # No view was fitted onto a test keypoint twice (too few left to fit at all).
-    assert all(len(np.unique(xy, axis=0)) == len(xy) for xy in fitted_onto)
 
 
 def test_a_larger_frame_is_given_keypoints_by_its_area(turning, cylinder, monkeypatch):

@@ -25,6 +25,7 @@ from numpy.typing import NDArray
 
 from posevote.features.edges import area_budget
 from posevote.geometry import angle_difference, box_iou, rotate_points, viewing_direction
+from posevote.inference.setup import SCALE_LIMITS
 from posevote.keypoints.model import DESCRIPTOR_LENGTH, detect_keypoints
 from posevote.model.density import PoseModel
 from posevote.model.morph import view_neighbours
@@ -203,12 +204,13 @@ def keypoint_locate(hypothesis: Hypothesis, model: PoseModel, image: NDArray[np.
 
     The image's keypoints (at most :data:`LOCATE_KEYPOINTS` per 640 x 480 of it, SIFT's
     strongest) are matched to each view's (each view keypoint's nearest test keypoint,
-    Lowe's ratio against the second nearest; one per test keypoint), and a similarity
-    fitted by RANSAC takes each view's matched keypoints onto the image; the view of most
-    inliers places the object (position, scale, in-plane angle from the similarity). It
-    replaces the mode where it holds at least :data:`MIN_INLIERS`, :data:`TURN_RATIO` times
-    the inliers of any view in the mode's own box, and its box overlaps the mode's by IoU
-    under 0.5 (the mode is elsewhere).
+    Lowe's ratio against the second nearest), and a similarity fitted by RANSAC takes each
+    view's matched keypoints onto the image; the view of most inliers places the object
+    (position, scale, in-plane angle from the similarity). It replaces the mode where it
+    holds at least :data:`MIN_INLIERS`, :data:`TURN_RATIO` times the inliers of any view in
+    the mode's own box, its scale lies within the scales any search may be given
+    (:data:`~posevote.inference.setup.SCALE_LIMITS`), and its box overlaps the mode's by
+    IoU under 0.5 (the mode is elsewhere).
 
     Parameters
     ----------
@@ -247,17 +249,14 @@ def keypoint_locate(hypothesis: Hypothesis, model: PoseModel, image: NDArray[np.
     matcher = cv2.BFMatcher(cv2.NORM_L2)
     knn = matcher.knnMatch(model.keypoint_descriptor.astype(np.float32),
                            desc.astype(np.float32), k=2)
-    kept = sorted((m[0].distance, m[0].trainIdx, m[0].queryIdx) for m in knn
-                  if len(m) == 2 and m[0].distance < MATCH_RATIO * m[1].distance)
-    pairs = np.array([(t, v) for _, t, v in kept], dtype=np.int64).reshape(-1, 2)
+    pairs = np.array([(m[0].trainIdx, m[0].queryIdx) for m in knn
+                      if len(m) == 2 and m[0].distance < MATCH_RATIO * m[1].distance],
+                     dtype=np.int64).reshape(-1, 2)
     best: tuple[int, int, NDArray[Any]] | None = None
     counts = np.zeros(model.n_views, dtype=np.int64)
     view_of = model.keypoint_view[pairs[:, 1]]
     for k in np.unique(view_of):
         mine = pairs[view_of == k]
-        # One view keypoint per test keypoint (the nearest): clutter matched many onto one
-        # point, which a similarity shrunk to that point takes as inliers.
-        mine = mine[np.sort(np.unique(mine[:, 0], return_index=True)[1])]
         if len(mine) < MIN_INLIERS:
             continue
         tolerance = INLIER_SHARE * float(np.hypot(*model.view_box[k]))
@@ -279,7 +278,9 @@ def keypoint_locate(hypothesis: Hypothesis, model: PoseModel, image: NDArray[np.
     k, count, fitted = best
     scale = math.hypot(fitted[0, 0], fitted[1, 0])
     inplane = math.atan2(fitted[1, 0], fitted[0, 0])
-    if scale <= 0 or (upright and abs(inplane) > MAX_TURN):
+    # Clutter matched many view keypoints onto one point, and a similarity shrunk to it held
+    # them all: a size no search could be asked for places nothing.
+    if not SCALE_LIMITS[0] <= scale <= SCALE_LIMITS[1] or (upright and abs(inplane) > MAX_TURN):
         return None
     position = np.asarray(fitted[:, 2], dtype=np.float64)
     located = replace(hypothesis, azimuth=float(model.view_azimuth[k]),
