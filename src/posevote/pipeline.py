@@ -422,8 +422,8 @@ def keypoints(state: EstimateState) -> EstimateState:
     holds none of its texture (a model of one instance), then turned to the side its
     texture shows and its viewpoint read between the views, from keypoints matched to
     theirs (a model of one instance, or the recognised instance's views); a located or
-    turned pose keeps the found one as the next mode, and its share of the texture's
-    evidence is the best mode's share."""
+    turned pose is polished on the edges and keeps the found one as the next mode, and its
+    share of the texture's evidence is the best mode's share."""
     if not state.hypotheses:
         return state
     full = state.trained.full_model
@@ -448,7 +448,11 @@ def keypoints(state: EstimateState) -> EstimateState:
     if share is None:
         return replace(state.with_hypotheses([pose, *hyps[1:]][:state.settings.max_modes]),
                        front_back=front_back)
-    # Turned: the texture's evidence for the side is the share the probability reads.
+    # Turned: polished on the edges at its own view as a located pose is (the scale was the
+    # other side's fit); the texture's evidence for the side is the share the probability
+    # reads.
+    pose = polish_pose(pose, state.trained.model, state.narrow(), turn=not upright,
+                       **score_options(state.setup))
     return replace(state.with_hypotheses([pose, *hyps][:state.settings.max_modes]),
                    front_back=share)
 

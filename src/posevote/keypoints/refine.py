@@ -43,7 +43,10 @@ MIN_INLIERS = 8
 #: the views within NEAR_ANGLE of it.
 TURN_ANGLE = math.radians(45.0)
 NEAR_ANGLE = math.radians(30.0)
-TURN_RATIO = 2.0
+TURN_RATIO = 1.5
+#: The whole image's keypoints place the object elsewhere when its view holds this many
+#: times the inliers of any view in the mode's box.
+LOCATE_RATIO = 2.0
 #: The fewest keypoints seen in the test image and both views that read the viewpoint
 #: between them.
 MIN_SHARED = 4
@@ -207,7 +210,7 @@ def keypoint_locate(hypothesis: Hypothesis, model: PoseModel, image: NDArray[np.
     Lowe's ratio against the second nearest), and a similarity fitted by RANSAC takes each
     view's matched keypoints onto the image; the view of most inliers places the object
     (position, scale, in-plane angle from the similarity). It replaces the mode where it
-    holds at least :data:`MIN_INLIERS`, :data:`TURN_RATIO` times the inliers of any view in
+    holds at least :data:`MIN_INLIERS`, :data:`LOCATE_RATIO` times the inliers of any view in
     the mode's own box, its scale lies within the scales any search may be given
     (:data:`~posevote.inference.setup.SCALE_LIMITS`), and its box overlaps the mode's by
     IoU under 0.5 (the mode is elsewhere).
@@ -292,7 +295,7 @@ def keypoint_locate(hypothesis: Hypothesis, model: PoseModel, image: NDArray[np.
         return None
     here = view_inliers(*test_keypoints(image, hypothesis, upright=upright), model,
                         np.arange(model.n_views))
-    if count < TURN_RATIO * max(max((len(i) for i in here), default=0), 1):
+    if count < LOCATE_RATIO * max(max((len(i) for i in here), default=0), 1):
         return None
     direction = viewing_direction(model.view_azimuth, model.view_elevation)
     far = direction @ direction[k] < math.cos(NEAR_ANGLE)
