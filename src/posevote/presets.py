@@ -74,7 +74,7 @@ PRESETS: dict[str, Preset] = {p.name: p for p in (
         measured="COIL instance protocol 0.69 / 1.33 deg median / mean with the keypoint "
                  "step, chosen on the 40 development objects (docs/results/coil_instance.md, "
                  "docs/DEFAULTS.md); min_score by 5-fold cross-validation "
-                 "over the 40 development objects: 91% of right-object views kept, 86% of "
+                 "over the 40 development objects: 91% of right-object views kept, 85% of "
                  "other objects' views and background crops rejected "
                  "(benchmarks/rejection_threshold.py, docs/results/rejection_threshold.md)",
         # The threshold of the best balanced accuracy between views of the object
@@ -90,7 +90,7 @@ PRESETS: dict[str, Preset] = {p.name: p for p in (
         chosen_on="COIL-100 training views pasted on clutter (self-test and cross-validation "
                   "on the training views)",
         script="benchmarks/coil_instance.py --selftest --clutter / --cv --clutter",
-        measured="COIL instance protocol in clutter 3.64 / 6.83 deg, 78.8% of positions "
+        measured="COIL instance protocol in clutter 3.64 / 7.45 deg, 79.2% of positions "
                  "within 5 px (docs/results/coil_instance_clutter.md); the template "
                  "re-ranking chosen on the development clutter CVs (docs/DEFAULTS.md); "
                  "min_score (on the contrast) and the image levels by 5-fold "
