@@ -715,7 +715,7 @@ def test_the_default_preset_rejects_what_is_not_the_object(synthetic_training, t
     path = tmp_path / "clutter.png"
     cv2.imwrite(str(path), (clutter * 255).astype(np.uint8))
     r = invoke("estimate", tmp_path / "m.npz", path)
-    assert r.exit_code == 3 and "not above min_score 0.54" in r.output
+    assert r.exit_code == 3 and "below min_score 0.54" in r.output
     r = invoke("estimate", tmp_path / "m.npz", path, "--min-score", "0")
     assert r.exit_code == 0
 

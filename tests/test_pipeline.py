@@ -108,6 +108,22 @@ def test_the_steps_hand_on_what_they_make(fitted_estimator, draw):
     assert pipeline.result(done, 0.0).best == est.estimate(image).best
 
 
+def test_the_reject_step_keeps_a_detection_score_at_min_score(fitted_estimator, draw):
+    # A contrast is never below 0 (the chance floor): min_score 0 keeps every mode.
+    state, _ = fitted_estimator._begin(draw(np.radians(50.0)), "rgb")
+    found = pipeline.run(state, active_steps(state.settings)[:2]).hypotheses[0]
+    hyps = [replace(found, contrast=0.0), replace(found, contrast=2.0)]
+
+    def kept(min_score):
+        settings = replace(state.settings, min_score=min_score)
+        done = pipeline.reject(replace(state.with_hypotheses(hyps), settings=settings))
+        return [h.contrast for h in done.hypotheses], done.top_score
+
+    assert kept(0.0) == ([0.0, 2.0], 2.0)
+    assert kept(2.0) == ([2.0], 2.0)
+    assert kept(2.5) == ([], 2.0)
+
+
 def test_a_shared_artefact_is_built_once_and_only_when_read():
     calls = []
     built = Built(lambda: calls.append(1) or len(calls))

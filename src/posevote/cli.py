@@ -561,7 +561,7 @@ def _estimate_one(est: Any, image: Path, *, as_json: bool, overlay: Path | None,
             click.echo("  ambiguous: the best mode is more likely wrong than right (look again)")
     elif result.top_score > 0:
         what = "contrast" if est.search.contrast else "score"
-        click.echo(f"no object found (best {what} {result.top_score:.3f}, not above "
+        click.echo(f"no object found (best {what} {result.top_score:.3f}, below "
                    f"min_score {est.min_score:g}). {NOT_FOUND_HINT}", err=True)
     else:
         click.echo("no object found (no edges to vote)", err=True)

@@ -60,7 +60,7 @@ class PoseEstimator(GroupedParams):
     max_modes : int, default 3
         Modes reported per image.
     min_score : float, default 0.0
-        A mode whose detection score is not above this is dropped; none left: "not
+        A mode whose detection score is below this is dropped; none left: "not
         found". The detection score is the mode's contrast where
         ``SearchOptions.contrast`` measures it, else its score.
     n_jobs : int, default 1

@@ -33,8 +33,8 @@ outline               ``refine.outline``              each mode's box from its v
 contrast              ``search.contrast``             each mode's score over its frame's
                                                       background spread, less its box's
                                                       places in the frame
-reject                always (``min_score``)          the modes whose detection score is above
-                                                      ``min_score``
+reject                always (``min_score``)          the modes whose detection score is at
+                                                      least ``min_score``
 probabilities         always                          each mode's probability
 place                 always                          ``R_cam_obj``, ``t_cam_obj`` (a camera)
 ====================  ==============================  ===========================================
@@ -475,12 +475,13 @@ def contrast(state: EstimateState) -> EstimateState:
 
 
 def reject(state: EstimateState) -> EstimateState:
-    """The modes whose detection score (contrast where measured) is above ``min_score``;
-    the best is kept (what a rejected image scored)."""
+    """The modes whose detection score (contrast where measured) is at least ``min_score``
+    (0 keeps every contrast, which is never below 0); the best is kept (what a rejected
+    image scored)."""
     hyps = state.hypotheses
     return replace(state, top_score=max((h.detection_score for h in hyps), default=0.0),
                    hypotheses=tuple(h for h in hyps
-                                    if h.detection_score > state.settings.min_score))
+                                    if h.detection_score >= state.settings.min_score))
 
 
 def probabilities(state: EstimateState) -> EstimateState:

@@ -90,7 +90,7 @@ PRESETS: dict[str, Preset] = {p.name: p for p in (
         chosen_on="COIL-100 training views pasted on clutter (self-test and cross-validation "
                   "on the training views)",
         script="benchmarks/coil_instance.py --selftest --clutter / --cv --clutter",
-        measured="COIL instance protocol in clutter 3.64 / 7.45 deg, 79.2% of positions "
+        measured="COIL instance protocol in clutter 3.64 / 6.81 deg, 79.2% of positions "
                  "within 5 px (docs/results/coil_instance_clutter.md); the template "
                  "re-ranking chosen on the development clutter CVs (docs/DEFAULTS.md); "
                  "min_score (on the contrast) and the image levels by 5-fold "
