@@ -441,8 +441,7 @@ def keypoints(state: EstimateState) -> EstimateState:
     if located is not None:
         # The texture found the object away from the mode (kept next); the edges polish it,
         # and its side's share is the texture's (the profile peaked at the mode).
-        hyps = (polish_pose(located[0], state.trained.model, state.narrow(), turn=not upright,
-                            **score_options(state.setup)), *hyps)
+        hyps = (_polished(located[0], state, upright=upright), *hyps)
         front_back = located[1]
     pose, share = keypoint_refine(hyps[0], full, state.image, views=views, upright=upright)
     if share is None:
@@ -451,10 +450,16 @@ def keypoints(state: EstimateState) -> EstimateState:
     # Turned: polished on the edges at its own view as a located pose is (the scale was the
     # other side's fit); the texture's evidence for the side is the share the probability
     # reads.
-    pose = polish_pose(pose, state.trained.model, state.narrow(), turn=not upright,
-                       **score_options(state.setup))
+    pose = _polished(pose, state, upright=upright)
     return replace(state.with_hypotheses([pose, *hyps][:state.settings.max_modes]),
                    front_back=share)
+
+
+def _polished(pose: Hypothesis, state: EstimateState, *, upright: bool) -> Hypothesis:
+    """A pose the keypoints placed or turned, polished on the edges (its in-plane angle held
+    where the search holds the object upright)."""
+    return polish_pose(pose, state.trained.model, state.narrow(), turn=not upright,
+                       **score_options(state.setup))
 
 
 def outline(state: EstimateState) -> EstimateState:
