@@ -13,6 +13,7 @@ from posevote.evaluation.frames import (
     FramesSetup,
     frame,
     mosaic,
+    report_text,
     reported_outcomes,
     run_frames,
     summarize,
@@ -76,10 +77,10 @@ def test_a_run_reports_detection_calibration_and_time(coil_dir, tmp_path):
 
 
 def test_the_figures_at_a_threshold():
-    recs = [{"kind": "object", "size": [480, 640], "score": 0.5, "iou": 0.8, "error_deg": 10.0,
-             "probability": 0.9, "seconds": 1.0},
-            {"kind": "object", "size": [480, 640], "score": 0.2, "iou": 0.1, "error_deg": 90.0,
-             "probability": 0.6, "seconds": 1.0},
+    recs = [{"kind": "object", "object": 6, "size": [480, 640], "scale": 1.0, "score": 0.5,
+             "iou": 0.8, "error_deg": 10.0, "probability": 0.9, "seconds": 1.0},
+            {"kind": "object", "object": 6, "size": [480, 640], "scale": 1.0, "score": 0.2,
+             "iou": 0.1, "error_deg": 90.0, "probability": 0.6, "seconds": 1.0},
             {"kind": "empty", "size": [480, 640], "score": 0.3, "iou": 0.0, "error_deg": None,
              "probability": 0.8, "seconds": 1.0}]
     at = summarize(recs, 0.25)["by_size"]["640x480"]
@@ -91,6 +92,29 @@ def test_the_figures_at_a_threshold():
     right, prob = reported_outcomes(recs, 0.25)
     assert right.tolist() == [True, False, False] and prob.tolist() == [0.9, 0.0, 0.8]
     assert at["ece"] == pytest.approx((0.1 + 0.8) / 3)
+
+
+def test_the_object_frames_by_size_and_the_wrong_poses_found():
+    def rec(scale, score, iou, error, obj=1):
+        return {"kind": "object", "object": obj, "size": [480, 640], "scale": scale,
+                "score": score, "iou": iou, "error_deg": error, "probability": 0.5,
+                "seconds": 1.0}
+
+    recs = [rec(0.45, 0.5, 0.8, 10.0), rec(0.5, 0.1, 0.8, 10.0), rec(0.5, 0.5, 0.2, 10.0),
+            rec(1.2, 0.5, 0.9, 50.0, obj=47), rec(3.0, 0.5, 0.9, 5.0),
+            {"kind": "empty", "size": [480, 640], "score": 0.9, "iou": 0.0,
+             "error_deg": None, "probability": 0.5, "seconds": 1.0}]
+    summary = summarize(recs, 0.25)
+    small = summary["by_object_size"]["0.4-0.55"]
+    assert small == {"frames": 3, "boxed": pytest.approx(200 / 3),
+                     "found": pytest.approx(100 / 3), "right": pytest.approx(100 / 3)}
+    assert summary["by_object_size"]["1-1.4"] == {"frames": 1, "boxed": 100.0,
+                                                  "found": 100.0, "right": 0.0}
+    assert summary["by_object_size"]["2-3"]["frames"] == 1      # the top size counts
+    assert summary["wrong_found"] == [47]
+    text = report_text(FramesSetup(), summary)
+    assert "| 0.4-0.55× | 3 | 66.7 | 33.3 | 33.3 |" in text
+    assert "Found 30° or more off (object, frames): 47." in text
 
 
 def test_the_command_line_runs_the_frames(monkeypatch, tmp_path, coil_dir):

@@ -64,6 +64,8 @@ DEVELOPMENT_OBJECTS = (1, 6, 7, 8, 13, 15, 22, 23, 24, 25, 26, 31, 33, 41, 46, 4
 HALF_TURN = frozenset({1, 31, 46, 54, 79, 96, 13, 22, 33, 64})
 #: A pose is right within this azimuth error (and a found box).
 RIGHT_DEG = 30.0
+#: The object's size bands (times its training size) the report breaks the frames into.
+SIZE_BANDS = (0.4, 0.55, 0.7, 1.0, 1.4, 2.0, 3.0)
 #: EPFL cars whose frames make the mosaics (the development cars; 11-20 are held out).
 MOSAIC_CARS = tuple(range(1, 11))
 
@@ -275,13 +277,34 @@ def _right_above(prob: NDArray[np.float64], right: NDArray[np.bool_], level: flo
     return 100 * float(np.mean(right[sel])) if sel.any() else None
 
 
+def _band(records: Sequence[dict[str, Any]], threshold: float) -> dict[str, Any]:
+    """Of some object frames: how many, the share with the best box on the object (IoU >=
+    0.5, whatever its score), found, and found within 30 degrees."""
+    boxed = [r for r in records if r["iou"] >= 0.5]
+    found = [r for r in boxed if r["score"] > threshold]
+    n = max(len(records), 1)
+    return {"frames": len(records), "boxed": 100 * len(boxed) / n,
+            "found": 100 * len(found) / n,
+            "right": 100 * sum(r["error_deg"] < RIGHT_DEG for r in found) / n}
+
+
 def summarize(records: Sequence[dict[str, Any]], threshold: float) -> dict[str, Any]:
-    """The figures per frame size and over every frame, at ``threshold``."""
+    """The figures per frame size and over every frame, at ``threshold``; the object frames
+    by the object's size (:data:`SIZE_BANDS`, both frame sizes), and the objects whose
+    found pose was off by :data:`RIGHT_DEG` or more (one entry a frame)."""
     sizes = sorted({tuple(r["size"]) for r in records})
     out = {f"{w}x{h}": _score([r for r in records if tuple(r["size"]) == (h, w)], threshold)
            for h, w in sizes}
     out["all"] = _score(records, threshold)
-    return {"threshold": threshold, "by_size": out}
+    objects = [r for r in records if r["kind"] == "object"]
+    bands = {f"{lo:g}-{hi:g}": _band([r for r in objects if lo <= r["scale"] < hi
+                                      or (hi == SIZE_BANDS[-1] and r["scale"] == hi)],
+                                     threshold)
+             for lo, hi in zip(SIZE_BANDS[:-1], SIZE_BANDS[1:], strict=True)}
+    wrong = sorted(r["object"] for r in objects if r["iou"] >= 0.5
+                   and r["score"] > threshold and r["error_deg"] >= RIGHT_DEG)
+    return {"threshold": threshold, "by_size": out, "by_object_size": bands,
+            "wrong_found": wrong}
 
 
 _COLUMNS = (("frames", "frames", "{}"), ("empty_frames", "empty", "{}"),
@@ -307,6 +330,20 @@ def report_text(setup: FramesSetup, summary: dict[str, Any]) -> str:
     rows = "".join(f"| {name} | " + " | ".join(cell(figures[k], f) for k, _, f in _COLUMNS)
                    + " |\n" for name, figures in summary["by_size"].items())
     sizes = ", ".join(f"{w}×{h}" for h, w in setup.sizes)
+    bands = summary.get("by_object_size", {})
+    by_band = ("The object frames by the object's size (times its training size; both frame "
+               "sizes): how many, the share whose best box is on the object (IoU ≥ 0.5, "
+               "whatever its score), found, and right.\n\n"
+               "| size | frames | box on the object % | found % | right % |\n"
+               "|---|---|---|---|---|\n" + "".join(
+                   f"| {name}× | {b['frames']} | {b['boxed']:.1f} | {b['found']:.1f} | "
+                   f"{b['right']:.1f} |\n" for name, b in bands.items())) if bands else ""
+    wrong = summary.get("wrong_found")
+    if wrong is not None:
+        counts = {o: wrong.count(o) for o in dict.fromkeys(wrong)}
+        by_band += (f"\nFound {RIGHT_DEG:g}° or more off (object, frames): "
+                    + (", ".join(f"{o}" + (f" ({k})" if k > 1 else "")
+                                 for o, k in counts.items()) or "none") + ".\n")
     return (f"# frames: {setup.preset} preset\n\n"
             f"{len(setup.objects)} development COIL objects, each its own model (views every "
             f"20° trained); per object and frame size ({sizes}) {setup.frames} frame(s) with "
@@ -319,7 +356,7 @@ def report_text(setup: FramesSetup, summary: dict[str, Any]) -> str:
             f"within {RIGHT_DEG:g}° of azimuth. The probabilities (ECE, p ≥ 0.9, the most "
             "confident 85%, the plot) are those reported: a frame not found reports p 0.\n\n"
             f"Steps: {row_steps(setup.preset, dict(setup.params))}.\n\n{head}{rows}\n"
-            "![calibration](calibration.png)\n")
+            + (f"{by_band}\n" if by_band else "") + "![calibration](calibration.png)\n")
 
 
 def run_frames(setup: FramesSetup, data: str | Path, out: str | Path, *, jobs: int = 1,
