@@ -65,7 +65,7 @@ HALF_TURN = frozenset({1, 31, 46, 54, 79, 96, 13, 22, 33, 64})
 #: A pose is right within this azimuth error (and a found box).
 RIGHT_DEG = 30.0
 #: The object's size bands (times its training size) the report breaks the frames into.
-SIZE_BANDS = (0.4, 0.55, 0.7, 1.0, 1.4, 2.0, 3.0)
+SIZE_BANDS = (SCALE_RANGE[0], 0.55, 0.7, 1.0, 1.4, 2.0, SCALE_RANGE[1])
 #: EPFL cars whose frames make the mosaics (the development cars; 11-20 are held out).
 MOSAIC_CARS = tuple(range(1, 11))
 
@@ -231,12 +231,17 @@ def frame_record(est: PoseEstimator, item: dict[str, Any]) -> dict[str, Any]:
     return rec
 
 
+def _found(record: dict[str, Any], threshold: float) -> bool:
+    """An object frame whose score is over ``threshold`` and whose box is on the object."""
+    return record["score"] > threshold and record["iou"] >= 0.5
+
+
 def _score(records: Sequence[dict[str, Any]], threshold: float) -> dict[str, Any]:
     """The benchmark's figures over some records, at ``threshold``."""
     objects = [r for r in records if r["kind"] == "object"]
     empties = [r for r in records if r["kind"] == "empty"]
     hit = [r["kind"] == "object" and r["iou"] >= 0.5 for r in records]
-    found = [r for r in objects if r["score"] > threshold and r["iou"] >= 0.5]
+    found = [r for r in objects if _found(r, threshold)]
     errors = np.array([r["error_deg"] for r in found], dtype=float)
     right, prob = reported_outcomes(records, threshold)
     cal = calibration(prob, right)
@@ -280,10 +285,9 @@ def _right_above(prob: NDArray[np.float64], right: NDArray[np.bool_], level: flo
 def _band(records: Sequence[dict[str, Any]], threshold: float) -> dict[str, Any]:
     """Of some object frames: how many, the share with the best box on the object (IoU >=
     0.5, whatever its score), found, and found within 30 degrees."""
-    boxed = [r for r in records if r["iou"] >= 0.5]
-    found = [r for r in boxed if r["score"] > threshold]
+    found = [r for r in records if _found(r, threshold)]
     n = max(len(records), 1)
-    return {"frames": len(records), "boxed": 100 * len(boxed) / n,
+    return {"frames": len(records), "boxed": 100 * sum(r["iou"] >= 0.5 for r in records) / n,
             "found": 100 * len(found) / n,
             "right": 100 * sum(r["error_deg"] < RIGHT_DEG for r in found) / n}
 
@@ -301,8 +305,8 @@ def summarize(records: Sequence[dict[str, Any]], threshold: float) -> dict[str, 
                                       or (hi == SIZE_BANDS[-1] and r["scale"] == hi)],
                                      threshold)
              for lo, hi in zip(SIZE_BANDS[:-1], SIZE_BANDS[1:], strict=True)}
-    wrong = sorted(r["object"] for r in objects if r["iou"] >= 0.5
-                   and r["score"] > threshold and r["error_deg"] >= RIGHT_DEG)
+    wrong = sorted(r["object"] for r in objects
+                   if _found(r, threshold) and r["error_deg"] >= RIGHT_DEG)
     return {"threshold": threshold, "by_size": out, "by_object_size": bands,
             "wrong_found": wrong}
 
@@ -330,20 +334,17 @@ def report_text(setup: FramesSetup, summary: dict[str, Any]) -> str:
     rows = "".join(f"| {name} | " + " | ".join(cell(figures[k], f) for k, _, f in _COLUMNS)
                    + " |\n" for name, figures in summary["by_size"].items())
     sizes = ", ".join(f"{w}×{h}" for h, w in setup.sizes)
-    bands = summary.get("by_object_size", {})
+    wrong = summary["wrong_found"]
     by_band = ("The object frames by the object's size (times its training size; both frame "
                "sizes): how many, the share whose best box is on the object (IoU ≥ 0.5, "
                "whatever its score), found, and right.\n\n"
                "| size | frames | box on the object % | found % | right % |\n"
                "|---|---|---|---|---|\n" + "".join(
                    f"| {name}× | {b['frames']} | {b['boxed']:.1f} | {b['found']:.1f} | "
-                   f"{b['right']:.1f} |\n" for name, b in bands.items())) if bands else ""
-    wrong = summary.get("wrong_found")
-    if wrong is not None:
-        counts = {o: wrong.count(o) for o in dict.fromkeys(wrong)}
-        by_band += (f"\nFound {RIGHT_DEG:g}° or more off (object, frames): "
-                    + (", ".join(f"{o}" + (f" ({k})" if k > 1 else "")
-                                 for o, k in counts.items()) or "none") + ".\n")
+                   f"{b['right']:.1f} |\n" for name, b in summary["by_object_size"].items())
+               + f"\nFound {RIGHT_DEG:g}° or more off (object, frames): "
+               + (", ".join(f"{o}" + (f" ({wrong.count(o)})" if wrong.count(o) > 1 else "")
+                            for o in dict.fromkeys(wrong)) or "none") + ".\n")
     return (f"# frames: {setup.preset} preset\n\n"
             f"{len(setup.objects)} development COIL objects, each its own model (views every "
             f"20° trained); per object and frame size ({sizes}) {setup.frames} frame(s) with "
@@ -356,7 +357,7 @@ def report_text(setup: FramesSetup, summary: dict[str, Any]) -> str:
             f"within {RIGHT_DEG:g}° of azimuth. The probabilities (ECE, p ≥ 0.9, the most "
             "confident 85%, the plot) are those reported: a frame not found reports p 0.\n\n"
             f"Steps: {row_steps(setup.preset, dict(setup.params))}.\n\n{head}{rows}\n"
-            + (f"{by_band}\n" if by_band else "") + "![calibration](calibration.png)\n")
+            f"{by_band}\n![calibration](calibration.png)\n")
 
 
 def run_frames(setup: FramesSetup, data: str | Path, out: str | Path, *, jobs: int = 1,
