@@ -56,6 +56,7 @@ from posevote.data import read_coil  # noqa: E402
 from posevote.evaluation.metrics import summarize_errors  # noqa: E402
 from posevote.evaluation.synthetic import paste_on_clutter  # noqa: E402
 from posevote.geometry import angular_error, box_centre  # noqa: E402
+from posevote.results import LOOKALIKE  # noqa: E402
 
 OBJECTS = (1, 6, 8, 13, 15, 22, 23, 31, 33, 46, 54, 64, 76, 79, 91, 96)
 #: The 24 objects added for cross-validation (../shared/data/coil-100/README).
@@ -162,11 +163,12 @@ def run_split(obj: int, data: str, train_az: list[int], test_az: list[int], clut
                           if k not in params and k not in FIT_SETTINGS})
         # A --param field of a group the row sets (refine.keypoints=True) wins over the row's.
         est.set_params(**{k: v for k, v in params.items() if "__" in k})
-        errs, secs, pos_err, scale_err, inplane_err, prob = [], [], [], [], [], []
+        errs, secs, pos_err, scale_err, inplane_err, prob, amb = [], [], [], [], [], [], []
         for k, (img, pose) in enumerate(zip(images, test.poses, strict=True)):
             r = est.estimate(img)
             secs.append(r.seconds)
             prob.append(0.0 if r.best is None else r.best.probability)
+            amb.append(r.ambiguous)
             if r.best is None:
                 errs.append(np.pi / 2 if period == np.pi else np.pi)
                 pos_err.append(np.inf)
@@ -181,11 +183,13 @@ def run_split(obj: int, data: str, train_az: list[int], test_az: list[int], clut
                                                                   pasted[k].inplane))))
         out[row] = {"errors_deg": np.degrees(errs).tolist(), "seconds": secs,
                     "position_error_px": pos_err, "probability": prob,
+                    "ambiguous": amb,
                     "log_scale_error": scale_err}
         if clutter:
             out[row]["inplane_error_deg"] = inplane_err
     first = next(iter(models.values()))
-    out.update(train_s=train_s[0], n_features=first.model_.n_features)
+    out.update(train_s=train_s[0], n_features=first.model_.n_features,
+               lookalike=float(np.median(first.model_.view_lookalike)))
     return out
 
 
@@ -267,21 +271,23 @@ def print_report(args, params, objects, rows, results, wall) -> None:
                   f"{np.median(log_s):+.4f}, mean |log s| {np.mean(np.abs(log_s)):.4f}")
     last = rows[-1]
     # Objects that look alike from every side: most of their estimates say so (ambiguous).
-    ambiguous = {r["object"]: float(np.mean(np.array(r[last]["probability"]) < 0.5))
-                 for r in results}
+    ambiguous = {r["object"]: float(np.mean(r[last]["ambiguous"])) for r in results}
     undefined = [o for o, share in ambiguous.items() if share > 0.5]
     if len(undefined) == len(results):
-        print(f"azimuth undefined ({last}: over half of an object's estimates ambiguous, best-"
-              "mode probability < 0.5): every object")
+        print(f"azimuth undefined ({last}: over half of an object's estimates ambiguous): "
+              "every object")
     elif undefined:
         rest = np.concatenate([r[last]["errors_deg"] for r in results
                                if r["object"] not in undefined])
-        print(f"azimuth undefined ({last}: over half of an object's estimates ambiguous, best-"
-              f"mode probability < 0.5): objects {', '.join(map(str, undefined))}; the other "
+        print(f"azimuth undefined ({last}: over half of an object's estimates ambiguous): "
+              f"objects {', '.join(map(str, undefined))}; the other "
               f"{len(results) - len(undefined)} objects: median {np.median(rest):.2f}, mean "
               f"{np.mean(rest):.2f}")
     print(f"share of ambiguous estimates per object ({last}): " + ", ".join(
         f"{o}: {100 * share:.0f}%" for o, share in ambiguous.items()))
+    print("how alike each object's views are to its other sides (results.LOOKALIKE "
+          f"{LOOKALIKE:g}), median over its views: " + ", ".join(
+              f"{r['object']}: {r['lookalike']:.2f}" for r in results))
     print(f"per object ({last}), median/mean: " + ", ".join(
         f"{r['object']}: {np.median(r[last]['errors_deg']):.1f}/"
         f"{np.mean(r[last]['errors_deg']):.1f}" for r in results))

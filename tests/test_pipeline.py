@@ -29,14 +29,14 @@ def _names(settings: Settings) -> list[str]:
 def test_each_preset_runs_its_steps_in_order():
     assert {name: _names(_settings(name)) for name in PRESETS} == {
         "default": ["search", "modes", "fit", "rescale", "recognise", "keypoints", "outline",
-                    "reject", "probabilities", "place"],
+                    "reject", "probabilities", "lookalike", "place"],
         "cluttered": ["search", "rerank by template", "modes", "fit", "local refinement",
                       "half-turn", "share scale", "recognise", "keypoints", "outline",
-                      "contrast", "reject", "probabilities", "place"],
+                      "contrast", "reject", "probabilities", "lookalike", "place"],
         "turntable": ["search", "modes", "fit", "local refinement", "recognise", "outline",
-                      "reject", "probabilities", "place"],
+                      "reject", "probabilities", "lookalike", "place"],
         "category": ["search", "verify", "modes", "fit", "recognise", "appearance", "reject",
-                     "probabilities", "place"]}
+                     "probabilities", "lookalike", "place"]}
     assert describe(_settings("cluttered"))[4] == "local refinement (profile)"
     assert describe(_settings("default"))[3] == "rescale [one instance]"
 

@@ -31,7 +31,8 @@ IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp", ".p
 #: The most images one batch may name.
 MAX_IMAGES = 1_000_000
 CSV_FIELDS = ("image", "object", "found", "azimuth_deg", "elevation_deg", "inplane_deg", "scale", "u", "v",
-              "box_x", "box_y", "box_w", "box_h", "score", "contrast", "probability", "ambiguous",
+              "box_x", "box_y", "box_w", "box_h", "score", "contrast", "probability", "lookalike",
+              "ambiguous",
               "top_score", "instance",
               *(f"R{i}{j}" for i in range(3) for j in range(3)), "tx_m", "ty_m", "tz_m",
               "seconds")
@@ -152,7 +153,7 @@ def csv_row(record: dict[str, Any]) -> list[Any]:
             best.get("azimuth_deg"),
             best.get("elevation_deg"), best.get("inplane_deg"), best.get("scale"), *pos, *box,
             best.get("score"), best.get("contrast"), best.get("probability"),
-            record.get("ambiguous"),
+            best.get("lookalike"), record.get("ambiguous"),
             record.get("top_score"), record.get("instance"),
             *(R[i][j] for i in range(3) for j in range(3)), *t, record.get("seconds")]
 

@@ -557,8 +557,11 @@ def _estimate_one(est: Any, image: Path, *, as_json: bool, overlay: Path | None,
         for rank, m in enumerate(result.modes[1:], start=2):
             click.echo(f"  mode {rank}: azimuth {m.azimuth_deg:.1f} deg  score {m.score:.3f}  "
                        f"{_contrast(m)}p {m.probability:.2f}")
-        if result.ambiguous:
+        if result.ambiguous and not b.probability >= 0.5:
             click.echo("  ambiguous: the best mode is more likely wrong than right (look again)")
+        elif result.ambiguous:
+            click.echo(f"  ambiguous: the object looks alike from another side here (lookalike "
+                       f"{b.lookalike:.2f}): its azimuth is not defined by its edges")
     elif result.top_score > 0:
         what = "contrast" if est.search.contrast else "score"
         click.echo(f"no object found (best {what} {result.top_score:.3f}, below "

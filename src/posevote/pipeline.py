@@ -36,6 +36,8 @@ contrast              ``search.contrast``             each mode's score over its
 reject                always (``min_score``)          the modes whose detection score is at
                                                       least ``min_score``
 probabilities         always                          each mode's probability
+lookalike             always                          how alike the object looks there to
+                                                      another side of it (``ambiguous``)
 place                 always                          ``R_cam_obj``, ``t_cam_obj`` (a camera)
 ====================  ==============================  ===========================================
 
@@ -86,7 +88,7 @@ from posevote.inference.search import probe
 from posevote.inference.setup import SearchOptions, SearchSetup, search_maps
 from posevote.keypoints.model import KeypointCollector
 from posevote.keypoints.refine import image_keypoints, keypoint_locate, keypoint_refine
-from posevote.model.density import origin_offset
+from posevote.model.density import origin_offset, view_average
 from posevote.model.kernels import K1_CUTOFF, KernelOptions
 from posevote.model.outline import outline_at, outline_box
 from posevote.model.pruning import PruningPreset, resolve_preset
@@ -499,6 +501,21 @@ def probabilities(state: EstimateState) -> EstimateState:
         best_share=state.front_back))
 
 
+def lookalike(state: EstimateState) -> EstimateState:
+    """Each kept mode's likeness to another side of the object: its views'
+    ``view_lookalike`` averaged with K1 at its viewpoint (not measured: NaN, a model file
+    of an earlier posevote)."""
+    trained = state.trained
+    alike = trained.model.view_lookalike
+    if alike is None:
+        return state
+    return state.with_hypotheses([
+        replace(h, lookalike=float(view_average(trained.model, alike, h.azimuth, h.elevation,
+                                                kappa=trained.viewpoint_kappa,
+                                                k1_cutoff=K1_CUTOFF)))
+        for h in state.hypotheses])
+
+
 def place(state: EstimateState) -> EstimateState:
     """Each mode in the camera's frame, given a camera (``R_cam_obj``, ``t_cam_obj``)."""
     if state.camera is None:
@@ -614,6 +631,7 @@ STEPS: tuple[Step, ...] = (
          active=lambda s: s.search.contrast),
     Step(name="reject", run=reject, switch="always (min_score)"),
     Step(name="probabilities", run=probabilities),
+    Step(name="lookalike", run=lookalike),
     Step(name="place", run=place, when="a camera"),
 )
 #: The steps that make the probes (:meth:`~posevote.PoseEstimator.probe` runs these).

@@ -6,6 +6,13 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
+#: A mode at a view this alike to another side of the object (``Hypothesis.lookalike``)
+#: leaves its azimuth undefined (:attr:`PoseEstimate.ambiguous`): chosen on the 40
+#: development COIL objects, views every 20 and every 40 degrees, between the objects whose
+#: sides differ and those alike from every side (each object's median over its views;
+#: docs/DEFAULTS.md).
+LOOKALIKE = 0.8
+
 
 @dataclass(frozen=True, kw_only=True)
 class Hypothesis:
@@ -50,6 +57,12 @@ class Hypothesis:
         the frame (:mod:`posevote.scoring.contrast`): how far the mode stands
         out of its own frame's background; NaN where the preset does not
         measure it (``SearchOptions.contrast``).
+    lookalike : float
+        How alike the object looks here to another side of it, 30 degrees or
+        more away, in [0, 1]: the share of the edges of the views near this
+        viewpoint that the most alike views of other sides explain, and
+        they of theirs (:mod:`posevote.model.lookalike`); NaN when not
+        measured (a model file of an earlier posevote).
     """
 
     azimuth: float
@@ -64,6 +77,7 @@ class Hypothesis:
     t_cam_obj: tuple[float, float, float] | None = None
     probability: float = float("nan")
     contrast: float = float("nan")
+    lookalike: float = float("nan")
 
     @property
     def detection_score(self) -> float:
@@ -106,6 +120,7 @@ class Hypothesis:
             "refined": self.refined,
             "probability": None if math.isnan(self.probability) else self.probability,
             **({} if math.isnan(self.contrast) else {"contrast": self.contrast}),
+            **({} if math.isnan(self.lookalike) else {"lookalike": self.lookalike}),
             **({} if self.R_cam_obj is None else {"R_cam_obj": [list(r) for r in self.R_cam_obj]}),
             **({} if self.t_cam_obj is None else {"t_cam_obj_m": list(self.t_cam_obj),
                                                   "T_cam_obj": self.T_cam_obj}),
@@ -158,13 +173,17 @@ class PoseEstimate:
 
     @property
     def ambiguous(self) -> bool:
-        """True when the best mode is more likely wrong than right (probability under 1/2).
+        """True when the best mode's azimuth is not to be trusted: it is more likely wrong
+        than right (probability under 1/2), or the object looks nearly the same from another
+        side there (``best.lookalike`` at least :data:`LOOKALIKE`).
 
-        Two modes of a front/back confusion, or an object that looks the same
-        from every side (a ring, a plain can: the azimuth is undefined), both
-        give it; a robot should look again rather than act on the estimate.
+        Two modes of a front/back confusion give the first; an object that
+        looks the same from every side (a ring, a plain pot: the azimuth is
+        undefined) the second. A robot should look again, or treat the object
+        as the same from those sides, rather than act on the azimuth.
         """
-        return self.best is not None and not (self.best.probability >= 0.5)
+        best = self.best
+        return best is not None and (not best.probability >= 0.5 or best.lookalike >= LOOKALIKE)
 
     def to_dict(self) -> dict[str, Any]:
         """Plain dict for files and reports (degrees, pixels)."""

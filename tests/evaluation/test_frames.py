@@ -115,6 +115,13 @@ def test_the_object_frames_by_size_and_the_wrong_poses_found():
     text = report_text(FramesSetup(), summary)
     assert "| 0.4-0.55× | 3 | 66.7 | 33.3 | 33.3 |" in text
     assert "Found 30° or more off (object, frames): 47." in text
+    assert summary["ambiguous_found"] == [] and summary["unambiguous_within_30"] == pytest.approx(200 / 3)
+    # The ring said its azimuth was not to be trusted: apart, the other found are all right.
+    recs[3]["ambiguous"] = True
+    summary = summarize(recs, 0.25)
+    assert summary["ambiguous_found"] == [47] and summary["unambiguous_within_30"] == 100.0
+    assert "ambiguous (a likely wrong mode" in report_text(FramesSetup(), summary)
+    assert ": 47; of the other found, 100.0% within 30°." in report_text(FramesSetup(), summary)
 
 
 def test_the_command_line_runs_the_frames(monkeypatch, tmp_path, coil_dir):

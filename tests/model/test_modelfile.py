@@ -105,6 +105,22 @@ def test_view_outlines_round_trip_and_are_checked(tmp_path, toy_model):
             load_model(tmp_path / "bad.npz")
 
 
+def test_view_lookalikes_round_trip_are_checked_and_may_be_absent(tmp_path, toy_model):
+    from dataclasses import replace
+
+    model = toy_model()
+    alike = np.linspace(0.0, 1.0, model.n_views)
+    save_model(tmp_path / "m.npz", _trained(replace(model, view_lookalike=alike)), {})
+    np.testing.assert_array_equal(load_model(tmp_path / "m.npz")[0].model.view_lookalike, alike)
+    for bad in (alike[:-1], alike + 0.5, np.where(alike > 0.5, np.nan, alike)):
+        _rewrite(tmp_path / "m.npz", tmp_path / "bad.npz", view_lookalike=bad)
+        with pytest.raises(ValueError, match=CORRUPT_SHAPES):
+            load_model(tmp_path / "bad.npz")
+    # A file of an earlier posevote: no likeness measured, none made up.
+    save_model(tmp_path / "old.npz", _trained(replace(model, view_lookalike=None)), {})
+    assert load_model(tmp_path / "old.npz")[0].model.view_lookalike is None
+
+
 def test_model_file_errors(tmp_path, toy_model):
     with pytest.raises(FileNotFoundError, match="model file not found"):
         load_model(tmp_path / "none.npz")

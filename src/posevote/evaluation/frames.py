@@ -220,7 +220,8 @@ def frame_record(est: PoseEstimator, item: dict[str, Any]) -> dict[str, Any]:
                error_deg=None)
     best = result.best
     if best is not None:
-        rec.update(probability=best.probability, estimate_deg=best.azimuth_deg,
+        rec.update(probability=best.probability, ambiguous=result.ambiguous,
+                   estimate_deg=best.azimuth_deg,
                    box=list(best.box), scale_estimate=best.scale, pose_score=best.score,
                    detection=best.detection_score)
         if truth:
@@ -295,7 +296,8 @@ def _band(records: Sequence[dict[str, Any]], threshold: float) -> dict[str, Any]
 def summarize(records: Sequence[dict[str, Any]], threshold: float) -> dict[str, Any]:
     """The figures per frame size and over every frame, at ``threshold``; the object frames
     by the object's size (:data:`SIZE_BANDS`, both frame sizes), and the objects whose
-    found pose was off by :data:`RIGHT_DEG` or more (one entry a frame)."""
+    found pose was off by :data:`RIGHT_DEG` or more, and those found and ``ambiguous`` (one
+    entry a frame), with the share within :data:`RIGHT_DEG` of the other found."""
     sizes = sorted({tuple(r["size"]) for r in records})
     out = {f"{w}x{h}": _score([r for r in records if tuple(r["size"]) == (h, w)], threshold)
            for h, w in sizes}
@@ -305,10 +307,14 @@ def summarize(records: Sequence[dict[str, Any]], threshold: float) -> dict[str, 
                                       or (hi == SIZE_BANDS[-1] and r["scale"] == hi)],
                                      threshold)
              for lo, hi in zip(SIZE_BANDS[:-1], SIZE_BANDS[1:], strict=True)}
-    wrong = sorted(r["object"] for r in objects
-                   if _found(r, threshold) and r["error_deg"] >= RIGHT_DEG)
+    found = [r for r in objects if _found(r, threshold)]
+    wrong = sorted(r["object"] for r in found if r["error_deg"] >= RIGHT_DEG)
+    told = [r for r in found if not r.get("ambiguous")]
     return {"threshold": threshold, "by_size": out, "by_object_size": bands,
-            "wrong_found": wrong}
+            "wrong_found": wrong,
+            "ambiguous_found": sorted(r["object"] for r in found if r.get("ambiguous")),
+            "unambiguous_within_30": 100 * float(np.mean([r["error_deg"] < RIGHT_DEG
+                                                          for r in told])) if told else None}
 
 
 _COLUMNS = (("frames", "frames", "{}"), ("empty_frames", "empty", "{}"),
@@ -319,6 +325,12 @@ _COLUMNS = (("frames", "frames", "{}"), ("empty_frames", "empty", "{}"),
             ("right_of_p90", "% right of p ≥ 0.9", "{:.1f}"),
             ("accuracy_at_85", "% right, top 85%", "{:.1f}"),
             ("seconds_median", "s / frame", "{:.2f}"))
+
+
+def _objects(objects: Sequence[int]) -> str:
+    """Objects listed once each, their frames' count in brackets where over one."""
+    return ", ".join(f"{o}" + (f" ({objects.count(o)})" if objects.count(o) > 1 else "")
+                     for o in dict.fromkeys(objects)) or "none"
 
 
 def report_text(setup: FramesSetup, summary: dict[str, Any]) -> str:
@@ -342,9 +354,12 @@ def report_text(setup: FramesSetup, summary: dict[str, Any]) -> str:
                "|---|---|---|---|---|\n" + "".join(
                    f"| {name}× | {b['frames']} | {b['boxed']:.1f} | {b['found']:.1f} | "
                    f"{b['right']:.1f} |\n" for name, b in summary["by_object_size"].items())
-               + f"\nFound {RIGHT_DEG:g}° or more off (object, frames): "
-               + (", ".join(f"{o}" + (f" ({wrong.count(o)})" if wrong.count(o) > 1 else "")
-                            for o in dict.fromkeys(wrong)) or "none") + ".\n")
+               + f"\nFound {RIGHT_DEG:g}° or more off (object, frames): " + _objects(wrong)
+               + ".\n"
+               + "Found and ambiguous (a likely wrong mode, or a view alike to another side: "
+               + "the azimuth not to be trusted): " + _objects(summary["ambiguous_found"])
+               + "; of the other found, " + cell(summary["unambiguous_within_30"], "{:.1f}")
+               + f"% within {RIGHT_DEG:g}°.\n")
     return (f"# frames: {setup.preset} preset\n\n"
             f"{len(setup.objects)} development COIL objects, each its own model (views every "
             f"20° trained); per object and frame size ({sizes}) {setup.frames} frame(s) with "

@@ -84,6 +84,10 @@ class PoseModel:
         reference point in ``A`` directions, reference pixels, upright
         (:mod:`posevote.model.outline`; a view without a mask: its box);
         None: trained without masks (a pose's box is its view's box turned).
+    view_lookalike : ndarray, shape (K,), or None
+        How alike each view is to another side of its instance, in [0, 1]
+        (:mod:`posevote.model.lookalike`); None: not measured (a model file
+        of an earlier posevote).
     keypoint_xy : ndarray, shape (N, 2), or None
         The views' SIFT keypoints (:mod:`posevote.keypoints.model`), from
         their view's reference point, upright, reference pixels; None: not
@@ -112,6 +116,7 @@ class PoseModel:
     view_template: NDArray[np.float16] | None = None
     view_template_cell: NDArray[np.float64] | None = None
     view_outline: NDArray[np.float64] | None = None
+    view_lookalike: NDArray[np.float64] | None = None
     keypoint_xy: NDArray[np.float64] | None = None
     keypoint_descriptor: NDArray[np.uint8] | None = None
     keypoint_view: NDArray[np.int64] | None = None
@@ -220,7 +225,9 @@ class PoseModel:
                       view_template_cell=None if self.view_template_cell is None
                       else self.view_template_cell[views],
                       view_outline=None if self.view_outline is None
-                      else self.view_outline[views])
+                      else self.view_outline[views],
+                      view_lookalike=None if self.view_lookalike is None
+                      else self.view_lookalike[views])
         if self.keypoint_view is not None:
             kept = local[self.keypoint_view] >= 0
             fields.update(keypoint_xy=self.keypoint_xy[kept],  # type: ignore[index]

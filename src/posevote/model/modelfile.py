@@ -17,7 +17,9 @@ model, for recognition and refinement); ``shift`` and ``view_neighbour``
 for morphed models; ``view_origin`` when training gave the object's origin;
 ``view_template`` (float16, NaN outside the object) and
 ``view_template_cell``, the views' grey templates; ``view_outline`` when
-training gave masks;
+training gave masks; ``view_lookalike``, how alike each view is to another
+side (absent from files of an earlier posevote: no view is then taken for
+another side);
 ``view_descriptor``, ``objectness`` and ``box_regressor`` for the
 appearance stages; ``keypoint_xy``, ``keypoint_descriptor`` (uint8) and
 ``keypoint_view`` for the keypoint step; ``level_model_0``, ``level_model_1``, ...
@@ -66,7 +68,8 @@ _FEATURE_ARRAYS = ("xy", "theta", "view", "weight")
 _ARRAYS = (*_FEATURE_ARRAYS, "view_azimuth", "view_elevation", "view_box", "view_instance")
 _MORPH_ARRAYS = ("shift", "view_neighbour")
 #: Optional per-view arrays, written when the model has them.
-_VIEW_OPTIONAL = ("view_origin", "view_template", "view_template_cell", "view_outline")
+_VIEW_OPTIONAL = ("view_origin", "view_template", "view_template_cell", "view_outline",
+                  "view_lookalike")
 #: The views' keypoints, written when the model has them (the searched and full models share
 #: them).
 _KEYPOINT_ARRAYS = ("keypoint_xy", "keypoint_descriptor", "keypoint_view")
@@ -436,6 +439,12 @@ def _build(path: str, arrays: dict[str, np.ndarray], header: dict[str, Any]) -> 
                      and np.issubdtype(outline.dtype, np.number)
                      and bool(np.all(np.isfinite(outline)))
                      and bool(np.all(outline + np.roll(outline, OUTLINE_ANGLES // 2, axis=1) > 0)))
+    lookalike = arrays.get("view_lookalike")
+    if lookalike is not None:
+        # One share per view.
+        shapes_ok = (shapes_ok and lookalike.shape == (k,)
+                     and np.issubdtype(lookalike.dtype, np.number)
+                     and bool(np.all((lookalike >= 0) & (lookalike <= 1))))
     kp_xy, kp_desc, kp_view = (arrays.get(name) for name in _KEYPOINT_ARRAYS)
     if kp_xy is not None or kp_desc is not None or kp_view is not None:
         # Together: a position, a SIFT descriptor of bytes and a view per keypoint.
@@ -489,6 +498,7 @@ def _build(path: str, arrays: dict[str, np.ndarray], header: dict[str, Any]) -> 
         view_template=None if template is None else template.astype(np.float16),
         view_template_cell=None if cell is None else cell.astype(np.float64),
         view_outline=None if outline is None else outline.astype(np.float64),
+        view_lookalike=None if lookalike is None else lookalike.astype(np.float64),
         keypoint_xy=None if kp_xy is None else kp_xy.astype(np.float64),
         keypoint_descriptor=kp_desc,
         keypoint_view=None if kp_view is None else kp_view.astype(np.int64),
