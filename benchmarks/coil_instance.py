@@ -283,6 +283,13 @@ def print_report(args, params, objects, rows, results, wall) -> None:
               f"objects {', '.join(map(str, undefined))}; the other "
               f"{len(results) - len(undefined)} objects: median {np.median(rest):.2f}, mean "
               f"{np.mean(rest):.2f}")
+    flagged = np.concatenate([r[last]["ambiguous"] for r in results]).astype(bool)
+    errors = np.concatenate([r[last]["errors_deg"] for r in results])
+    if flagged.any() and not flagged.all():
+        print(f"ambiguous estimates ({last}): {flagged.sum()} of {len(flagged)}, "
+              f"{100 * np.mean(errors[flagged] < 30):.1f}% within 30 deg (mean "
+              f"{np.mean(errors[flagged]):.2f}); the others {100 * np.mean(errors[~flagged] < 30):.1f}% "
+              f"(mean {np.mean(errors[~flagged]):.2f})")
     print(f"share of ambiguous estimates per object ({last}): " + ", ".join(
         f"{o}: {100 * share:.0f}%" for o, share in ambiguous.items()))
     print("how alike each object's views are to its other sides (results.LOOKALIKE "

@@ -317,6 +317,7 @@ def train(source: Path, output: Path, layout: str, objects: str | None, cars: st
 
     from posevote.data import read_coil, read_epfl, read_poses_csv
     from posevote.estimator import PoseEstimator
+    from posevote.results import LOOKALIKE
 
     # A model file, never one of the inputs (poses.csv, an image) under another name.
     _output_file(output, "-o", suffixes=(".npz",))
@@ -392,6 +393,11 @@ def train(source: Path, output: Path, layout: str, objects: str | None, cars: st
     kept = "" if m is full else f" (pruned from {full.n_features})"
     click.echo(f"trained on {m.n_views} images ({len(m.instance_names)} instance(s)), "
                f"{m.n_features} features{kept}, mean weight {full.weight.mean():.2f} -> {output}")
+    alike = 0 if m.view_lookalike is None else int(np.sum(m.view_lookalike >= LOOKALIKE))
+    if alike:
+        click.echo(f"{alike} of {m.n_views} views look alike from another side 30 deg or more "
+                   f"away (lookalike >= {LOOKALIKE:g}): estimates there will be ambiguous, "
+                   "their azimuth undefined by the object's edges")
 
 
 @cli.command()
