@@ -53,6 +53,20 @@ def test_only_other_sides_of_the_same_instance_count():
     np.testing.assert_array_equal(other, 0.0)
 
 
+def test_many_views_are_compared_with_an_even_subset_of_them(monkeypatch):
+    from posevote.model import lookalike
+
+    shapes = [_bar(np.radians(a)) for a in (0, 90, 45, 135, 0, 90)]
+    views = _model(shapes, [0, 60, 120, 180, 240, 300])
+    every = view_lookalikes(**views, position_sigma=3.0)
+    monkeypatch.setattr(lookalike, "MAX_SIDES", 3)      # views 0, 2 and 5 the sides
+    some = view_lookalikes(**views, position_sigma=3.0)
+    np.testing.assert_allclose(every, [1, 1, 0, 0, 1, 1], atol=0.05)
+    # Each view finds its twin where the twin is among the sides (view 4 finds view 0, view
+    # 1 view 5); view 0's twin (view 4) is not one.
+    np.testing.assert_allclose(some, [0, 1, 0, 0, 1, 0], atol=0.05)
+
+
 def test_a_ring_is_ambiguous_and_a_box_is_not(coil_dir):
     # COIL object 47 (a ring) looks alike from every side; object 1 (a box) does not.
     def estimate(obj):

@@ -29,6 +29,11 @@ from posevote.refinement.probability import MODE_RADIUS
 from posevote.scoring.maps import TestMaps, prepare_test
 from posevote.scoring.score import density_at, phi_at
 
+#: The most views of one instance each view is compared with (evenly spaced among its
+#: views where it has more): by hand, so that the time grows with the views, not with their
+#: square (468 views over the sphere: every pair, about 3 s).
+MAX_SIDES = 600
+
 
 def view_lookalikes(xy: NDArray[np.float64], theta: NDArray[np.float64],
                     view: NDArray[np.int64], azimuth: NDArray[np.float64],
@@ -54,53 +59,73 @@ def view_lookalikes(xy: NDArray[np.float64], theta: NDArray[np.float64],
     -------
     ndarray, shape (K,)
         In [0, 1]: over the views of the same instance 30 degrees or more away
-        (:data:`~posevote.refinement.probability.MODE_RADIUS`), the largest mean of the
-        two shares each explains of the other (0 where there is none).
+        (:data:`~posevote.refinement.probability.MODE_RADIUS`; at most
+        :data:`MAX_SIDES` of them), the largest mean of the two shares each explains of
+        the other (0 where there is none).
     """
     k = len(azimuth)
+    alike = np.zeros(k)
     if not len(xy):
-        return np.zeros(k)
+        return alike
     # The views' frame moved into an image that holds every view with the kernel's reach.
     margin = 4.0 * position_sigma
     placed = xy - xy.min(axis=0) + margin
     shape = (int(np.ceil(placed[:, 1].max() + margin)), int(np.ceil(placed[:, 0].max() + margin)))
+    order = np.argsort(view, kind="stable")
+    bounds = np.searchsorted(view[order], np.arange(k + 1))
+    members = [order[bounds[v]:bounds[v + 1]] for v in range(k)]
+    counts = np.maximum(np.diff(bounds), 1)
 
-    def view_map(j: int) -> TestMaps:
-        mine = view == j
-        return prepare_test(EdgeFeatures(xy=placed[mine], theta=theta[mine]), shape,
+    def view_map(v: int) -> TestMaps:
+        return prepare_test(EdgeFeatures(xy=placed[members[v]], theta=theta[members[v]]), shape,
                             position_sigma=position_sigma, orientation_kappa=ORIENTATION_KAPPA)
+
+    def shares(maps: TestMaps, views: NDArray[np.int64], out: NDArray[np.float64]) -> None:
+        # out[s] = the mean share of views[s]'s edges the maps explain.
+        rows = np.concatenate([members[v] for v in views])
+        slots = np.repeat(np.arange(len(views)), [len(members[v]) for v in views])
+        _explained_shares(maps.density, maps.frame, placed, theta, own, rows, slots, out)
+        out /= counts[views]
 
     # Two passes, one view's maps at a time: the maps of every view at once would not fit.
     own = np.zeros(len(xy))
-    for j in range(k):
-        mine = view == j
-        own[mine] = density_at(view_map(j), placed[mine], theta[mine])
+    for v in range(k):
+        own[members[v]] = density_at(view_map(v), placed[members[v]], theta[members[v]])
     directions = viewing_direction(np.asarray(azimuth), np.asarray(elevation))
-    apart = directions @ directions.T <= math.cos(MODE_RADIUS) + 1e-9
-    apart &= np.asarray(instance)[:, None] == np.asarray(instance)[None, :]
-    explained = np.zeros((k, k))
-    counts = np.maximum(np.bincount(view, minlength=k), 1)
-    for j in range(k):
-        if apart[:, j].any():
-            maps = view_map(j)
-            _explained_shares(maps.density, maps.frame, placed, theta, own, view,
-                              apart[:, j], explained[:, j])
-    explained /= counts[:, None]
-    both = np.where(apart, 0.5 * (explained + explained.T), 0.0)
-    return np.asarray(both.max(axis=1), dtype=np.float64)
+    for group in np.unique(instance):
+        views = np.flatnonzero(instance == group)
+        sides = views if len(views) <= MAX_SIDES else views[np.unique(np.rint(
+            np.linspace(0, len(views) - 1, MAX_SIDES)).astype(np.int64))]
+        apart = directions[views] @ directions[sides].T <= math.cos(MODE_RADIUS) + 1e-9
+        if not apart.any():
+            continue
+        by = np.zeros(apart.shape)                      # views' edges the sides explain
+        for b in np.flatnonzero(apart.any(axis=0)):
+            column = np.zeros(int(apart[:, b].sum()))
+            shares(view_map(int(sides[b])), views[apart[:, b]], column)
+            by[apart[:, b], b] = column
+        if sides is views:
+            of = by.T                                   # the sides' edges the views explain
+        else:
+            of = np.zeros(apart.shape)
+            for a in np.flatnonzero(apart.any(axis=1)):
+                row = np.zeros(int(apart[a].sum()))
+                shares(view_map(int(views[a])), sides[apart[a]], row)
+                of[a, apart[a]] = row
+        alike[views] = np.where(apart, 0.5 * (by + of), 0.0).max(axis=1)
+    return alike
 
 
 @numba.njit(cache=True, nogil=True)
-def _explained_shares(density, frame, xy, theta, own, view, counted, out
+def _explained_shares(density, frame, xy, theta, own, rows, slots, out
                       ):  # pragma: no cover - compiled
-    """Add to ``out[v]``, for each point of a ``counted`` view ``v``, its density on the maps
-    over ``own``, at most 1 (as :func:`~posevote.scoring.score.density_at` reads them)."""
+    """Add to ``out[slots[r]]``, for each point ``rows[r]``, its density on the maps over
+    ``own``, at most 1 (as :func:`~posevote.scoring.score.density_at` reads them)."""
     n_bins = density.shape[0]
     bin_width = np.pi / n_bins
     inv = frame[5]
-    for i in range(xy.shape[0]):
-        if not counted[view[i]]:
-            continue
+    for r in range(rows.shape[0]):
+        i = rows[r]
         x = (xy[i, 0] - frame[4]) * inv
         y = (xy[i, 1] - frame[6]) * inv
         if x < frame[0] or y < frame[1] or x >= frame[2] or y >= frame[3]:
@@ -112,4 +137,4 @@ def _explained_shares(density, frame, xy, theta, own, view, counted, out
         if b0 < 0:
             b0 += n_bins
         b1 = b0 + 1 if b0 + 1 < n_bins else 0
-        out[view[i]] += min(1.0, phi_at(density, x, y, b0, b1, f - fb) / max(own[i], 1e-12))
+        out[slots[r]] += min(1.0, phi_at(density, x, y, b0, b1, f - fb) / max(own[i], 1e-12))
