@@ -119,7 +119,7 @@ def test_extending_a_model_equals_training_on_everything(synthetic_training, dra
     grown = PoseEstimator.load(tmp_path / "a.npz").partial_fit(
         scaled[9:], az[9:], boxes=boxes[9:], masks=masks[9:], instances=names[9:])
     for name in ("xy", "theta", "view", "weight", "view_azimuth", "view_box", "view_instance",
-                 "view_template", "view_template_cell", "view_outline"):
+                 "view_template", "view_template_cell", "view_outline", "view_lookalike"):
         np.testing.assert_allclose(getattr(grown.full_model_, name),
                                    getattr(whole.full_model_, name), atol=1e-9, err_msg=name)
     assert grown.full_model_.instance_names == whole.full_model_.instance_names == ("a", "b")
