@@ -80,6 +80,11 @@ def view_lookalikes(xy: NDArray[np.float64], theta: NDArray[np.float64],
         return prepare_test(EdgeFeatures(xy=placed[members[v]], theta=theta[members[v]]), shape,
                             position_sigma=position_sigma, orientation_kappa=ORIENTATION_KAPPA)
 
+    # Two passes, one view's maps at a time: the maps of every view at once would not fit.
+    own = np.zeros(len(xy))
+    for v in range(k):
+        own[members[v]] = density_at(view_map(v), placed[members[v]], theta[members[v]])
+
     def shares(maps: TestMaps, views: NDArray[np.int64], out: NDArray[np.float64]) -> None:
         # out[s] = the mean share of views[s]'s edges the maps explain.
         rows = np.concatenate([members[v] for v in views])
@@ -87,10 +92,6 @@ def view_lookalikes(xy: NDArray[np.float64], theta: NDArray[np.float64],
         _explained_shares(maps.density, maps.frame, placed, theta, own, rows, slots, out)
         out /= counts[views]
 
-    # Two passes, one view's maps at a time: the maps of every view at once would not fit.
-    own = np.zeros(len(xy))
-    for v in range(k):
-        own[members[v]] = density_at(view_map(v), placed[members[v]], theta[members[v]])
     directions = viewing_direction(np.asarray(azimuth), np.asarray(elevation))
     for group in np.unique(instance):
         views = np.flatnonzero(instance == group)
