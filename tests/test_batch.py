@@ -91,6 +91,10 @@ def test_bad_images_in_a_batch(model, frames, tmp_path):
     r = invoke("estimate", model, frames / "f0.png", bad, frames / "f1.png")
     assert r.exit_code == 1
     assert "bad.png: cannot decode" in r.output and "f1.png: azimuth" in r.output
+    # each line says how far to trust it: the probability, and "ambiguous" where it is
+    line = next(x for x in r.output.splitlines() if x.startswith(str(frames / "f1.png")))
+    p = float(line.split("  p ")[1].split()[0])
+    assert 0.0 <= p <= 1.0 and line.endswith("ambiguous") == (p < 0.5)
     assert "1 of 3 images could not be estimated" in r.output
 
 

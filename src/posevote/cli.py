@@ -616,12 +616,19 @@ def _estimate_many(model: Path, paths: list[Path], changes: dict[str, Any], came
                                f"elevation {b['elevation_deg']:.1f} deg  in-plane "
                                f"{b['inplane_deg']:.1f} deg  scale {b['scale']:.3f}  position "
                                f"({b['position_px'][0]:.1f}, {b['position_px'][1]:.1f}) px  "
-                               f"score {b['score']:.3f}")
+                               f"score {b['score']:.3f}{_batch_trust(rec)}")
                 elif "error" not in rec:
                     click.echo(f"{rec['image']}: no object found")
     if found + failed < len(paths):
         click.echo(NOT_FOUND_HINT, err=True)
     return found, failed
+
+
+def _batch_trust(record: dict[str, Any]) -> str:
+    """The probability of an image's best mode, and whether it is ambiguous, for its line."""
+    p = record["best"].get("probability")
+    return ("" if p is None else f"  p {p:.2f}") + ("  ambiguous" if record.get("ambiguous")
+                                                   else "")
 
 
 @cli.command()
