@@ -75,15 +75,17 @@ def test_every_step_has_a_flip_or_always_runs():
 
 
 def test_training_learns_what_the_steps_ask_for(synthetic_training):
-    assert artefacts(_settings("default")) == {"keypoints"}
-    assert artefacts(_settings("cluttered")) == {"templates", "keypoints"}
-    assert artefacts(_settings("category")) == {"appearance", "ranked probes"}
+    # Every preset's lookalike step asks for the views' likeness to other sides.
+    assert artefacts(_settings("default")) == {"keypoints", "lookalike"}
+    assert artefacts(_settings("cluttered")) == {"templates", "keypoints", "lookalike"}
+    assert artefacts(_settings("category")) == {"appearance", "ranked probes", "lookalike"}
     assert "keypoints" in artefacts(_settings("turntable", refine__keypoints=True))
     # The local refinement weighs by the templates: it asks for them alone.
     only_weigh = TemplateOptions(rerank=False, half_turn=False)
-    assert artefacts(_settings("cluttered", templates=only_weigh)) == {"templates", "keypoints"}
+    assert artefacts(_settings("cluttered", templates=only_weigh)) == {"templates", "keypoints",
+                                                                       "lookalike"}
     assert artefacts(_settings("cluttered", templates=only_weigh, refine__local=None,
-                               refine__keypoints=False)) == set()
+                               refine__keypoints=False)) == {"lookalike"}
     images, az, boxes = synthetic_training
     asked = PoseEstimator(templates=only_weigh).set_params(refine__local="profile").fit(
         images, az, boxes=boxes)

@@ -28,6 +28,10 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 TWO_PI = 2.0 * np.pi
+#: A pose is right when the true viewpoint is within this angle of it: a mode's radius
+#: (:mod:`posevote.refinement.probability`), and how far apart two sides of an object lie
+#: (:mod:`posevote.refinement.lookalike`).
+MODE_RADIUS = np.radians(30.0)
 
 # Fixed rotation taking object axes to camera axes at zero pose: object +x
 # (front) points to the camera (-Z), object +z (up) is image up (-Y).

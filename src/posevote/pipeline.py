@@ -98,6 +98,7 @@ from posevote.recognition.refine import recognize
 from posevote.refinement import RefineOptions
 from posevote.refinement.fitting import FIT_RADIUS_STEPS, find_modes, refine_mode
 from posevote.refinement.local import PoseWeights, local_refine, polish_pose, rescale_mode
+from posevote.refinement.lookalike import LookalikeCollector
 from posevote.refinement.probability import scored_viewpoints, with_probabilities
 from posevote.refinement.share import share_scale
 from posevote.results import Hypothesis, PoseEstimate
@@ -631,7 +632,7 @@ STEPS: tuple[Step, ...] = (
          active=lambda s: s.search.contrast),
     Step(name="reject", run=reject, switch="always (min_score)"),
     Step(name="probabilities", run=probabilities),
-    Step(name="lookalike", run=lookalike),
+    Step(name="lookalike", run=lookalike, needs=lambda s: frozenset({"lookalike"})),
     Step(name="place", run=place, when="a camera"),
 )
 #: The steps that make the probes (:meth:`~posevote.PoseEstimator.probe` runs these).
@@ -652,7 +653,8 @@ def artefacts(settings: Settings, steps: Sequence[Step] | None = None) -> frozen
 #: What learns each thing a step needs from training.
 COLLECTORS: dict[str, CollectorFactory] = {"templates": TemplateCollector,
                                            "appearance": AppearanceCollector,
-                                           "keypoints": KeypointCollector}
+                                           "keypoints": KeypointCollector,
+                                           "lookalike": LookalikeCollector}
 
 
 def collectors(needs: frozenset[str]) -> list[CollectorFactory]:
@@ -662,9 +664,10 @@ def collectors(needs: frozenset[str]) -> list[CollectorFactory]:
 
 def held(trained: TrainedModel) -> frozenset[str]:
     """What a fitted model holds besides its edges, which a partial fit learns for the new
-    views too."""
+    views too (the views' likeness to other sides, read from the edges alone, whatever it
+    holds)."""
     full = trained.full_model
-    found = {"templates"} if full.view_template is not None else set()
+    found = {"lookalike"} | ({"templates"} if full.view_template is not None else set())
     found |= {"keypoints"} if full.keypoint_xy is not None else set()
     return frozenset(found | ({"appearance"} if trained.appearance is not None else set()))
 

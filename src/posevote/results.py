@@ -61,7 +61,7 @@ class Hypothesis:
         How alike the object looks here to another side of it, 30 degrees or
         more away, in [0, 1]: the share of the edges of the views near this
         viewpoint that the most alike views of other sides explain, and
-        they of theirs (:mod:`posevote.model.lookalike`); NaN when not
+        they of theirs (:mod:`posevote.refinement.lookalike`); NaN when not
         measured (a model file of an earlier posevote).
     """
 

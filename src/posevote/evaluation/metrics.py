@@ -164,7 +164,7 @@ def average_precision(scores: ArrayLike, hits: ArrayLike, n_positives: int) -> f
 
 
 #: A mode's probability is that the truth lies within this many degrees of it
-#: (:data:`posevote.refinement.probability.MODE_RADIUS`).
+#: (:data:`posevote.geometry.MODE_RADIUS`).
 MODE_RADIUS_DEG = 30.0
 
 

@@ -86,7 +86,7 @@ class PoseModel:
         None: trained without masks (a pose's box is its view's box turned).
     view_lookalike : ndarray, shape (K,), or None
         How alike each view is to another side of its instance, in [0, 1]
-        (:mod:`posevote.model.lookalike`); None: not measured (a model file
+        (:mod:`posevote.refinement.lookalike`); None: not measured (a model file
         of an earlier posevote).
     keypoint_xy : ndarray, shape (N, 2), or None
         The views' SIFT keypoints (:mod:`posevote.keypoints.model`), from

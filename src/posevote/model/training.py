@@ -33,7 +33,6 @@ from posevote.features.edges import (
 from posevote.geometry import box_centre
 from posevote.model.density import PoseModel, build_model, viewpoint_kappa
 from posevote.model.kernels import ORIENTATION_KAPPA, KernelOptions
-from posevote.model.lookalike import view_lookalikes
 from posevote.model.morph import ViewCrops, view_neighbours, view_shifts
 from posevote.model.outline import OUTLINE_ANGLES, box_outline, mask_outline
 from posevote.model.pruning import PruningPreset, prune_model
@@ -449,9 +448,6 @@ def _pool(views: _Views, *, category: str, kernel: KernelOptions, prune: Pruning
                                      model.view_instance)
         model = replace(model, view_neighbour=neighbours, shift=view_shifts(
             feats, crops, neighbours, centers=centres, scales=scales, inplanes=pose_arr[:, 2]))
-    model = replace(model, view_lookalike=view_lookalikes(
-        model.xy, model.theta, model.view, model.view_azimuth, model.view_elevation,
-        model.view_instance, position_sigma=kernel.position_sigma))
     kappa = viewpoint_kappa(model, kernel.viewpoint_bandwidth_deg)
     weights = feature_weights(model, position_sigma=kernel.position_sigma,
                               orientation_kappa=ORIENTATION_KAPPA, viewpoint_kappa=kappa,

@@ -35,12 +35,9 @@ from dataclasses import replace
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from posevote.geometry import viewing_direction
+from posevote.geometry import MODE_RADIUS, viewing_direction
 from posevote.inference.probes import ProbeSet
 from posevote.results import Hypothesis
-
-#: A mode is right when the true viewpoint is within this angle of it.
-MODE_RADIUS = np.radians(30.0)
 
 #: Sharpness ``k`` of the posterior over viewpoints: chosen by
 #: ``benchmarks/calibrate_modes.py`` on the coil-loio records (16 folds), the

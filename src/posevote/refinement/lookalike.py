@@ -8,24 +8,28 @@ image. The model knows it at training: :func:`view_lookalikes` gives each
 view the share of its edges that the most alike view of another side explains
 and the share of that view's it explains, averaged; another side is a view of
 the same instance at least the angle within which a pose counts as right
-away (:data:`~posevote.refinement.probability.MODE_RADIUS`). An estimate at a
+away (:data:`~posevote.geometry.MODE_RADIUS`). An estimate at a
 view alike to another side by :data:`posevote.results.LOOKALIKE` or more is
 ambiguous (:attr:`posevote.results.PoseEstimate.ambiguous`): its azimuth may
-as well be that side's.
+as well be that side's. :class:`LookalikeCollector` lays the measure on the model
+when it is fitted (what the estimate's ``lookalike`` step needs), at the
+default kernel's width, where :data:`~posevote.results.LOOKALIKE` was chosen.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import replace
+from typing import Any
 
 import numba
 import numpy as np
 from numpy.typing import NDArray
 
 from posevote.features.edges import EdgeFeatures
-from posevote.geometry import viewing_direction
-from posevote.model.kernels import ORIENTATION_KAPPA
-from posevote.refinement.probability import MODE_RADIUS
+from posevote.geometry import MODE_RADIUS, viewing_direction
+from posevote.model.density import PoseModel
+from posevote.model.kernels import ORIENTATION_KAPPA, KernelOptions
 from posevote.scoring.maps import TestMaps, prepare_test
 from posevote.scoring.score import density_at, phi_at
 
@@ -59,7 +63,7 @@ def view_lookalikes(xy: NDArray[np.float64], theta: NDArray[np.float64],
     -------
     ndarray, shape (K,)
         In [0, 1]: over the views of the same instance 30 degrees or more away
-        (:data:`~posevote.refinement.probability.MODE_RADIUS`; at most
+        (:data:`~posevote.geometry.MODE_RADIUS`; at most
         :data:`MAX_SIDES` of them), the largest mean of the two shares each explains of
         the other (0 where there is none).
     """
@@ -115,6 +119,36 @@ def view_lookalikes(xy: NDArray[np.float64], theta: NDArray[np.float64],
                 of[a, apart[a]] = row
         alike[views] = np.where(apart, 0.5 * (by + of), 0.0).max(axis=1)
     return alike
+
+
+class LookalikeCollector:
+    """Lays :func:`view_lookalikes` on the pooled model while ``fit`` pools the views (a
+    :class:`~posevote.model.training.ViewCollector` that reads nothing from the images:
+    the model's edges are all it needs, those of earlier views included)."""
+
+    def __init__(self, boxes: NDArray[np.float64]) -> None:
+        del boxes
+
+    def read(self, image: NDArray[np.float64], box: NDArray[np.float64],
+             mask: NDArray[np.bool_] | None, pose: NDArray[np.float64]) -> None:
+        """Nothing from the image."""
+
+    def add(self, index: int, read: Any, box: NDArray[np.float64],
+            pose: NDArray[np.float64]) -> None:
+        """Nothing to keep."""
+
+    def with_earlier(self, full: PoseModel, size: NDArray[np.float64]) -> None:
+        """Nothing: the pooled model holds the earlier views' edges."""
+
+    def onto_model(self, model: PoseModel, scales: NDArray[np.float64]) -> PoseModel:
+        """The model with each view's likeness to another side."""
+        return replace(model, view_lookalike=view_lookalikes(
+            model.xy, model.theta, model.view, model.view_azimuth, model.view_elevation,
+            model.view_instance, position_sigma=KernelOptions().position_sigma))
+
+    def learnt(self, sizes: NDArray[np.float64], n_threads: int) -> dict[str, object]:
+        """Nothing apart from the model."""
+        return {}
 
 
 @numba.njit(cache=True, nogil=True)

@@ -8,7 +8,7 @@ import pytest
 
 from posevote import PoseEstimator
 from posevote.data import read_coil
-from posevote.model.lookalike import view_lookalikes
+from posevote.refinement.lookalike import view_lookalikes
 from posevote.results import LOOKALIKE
 
 
@@ -54,7 +54,7 @@ def test_only_other_sides_of_the_same_instance_count():
 
 
 def test_many_views_are_compared_with_an_even_subset_of_them(monkeypatch):
-    from posevote.model import lookalike
+    from posevote.refinement import lookalike
 
     shapes = [_bar(np.radians(a)) for a in (0, 90, 45, 135, 0, 90)]
     views = _model(shapes, [0, 60, 120, 180, 240, 300])
