@@ -31,7 +31,7 @@ from posevote.geometry import MODE_RADIUS, viewing_direction
 from posevote.model.density import PoseModel
 from posevote.model.kernels import ORIENTATION_KAPPA, KernelOptions
 from posevote.scoring.maps import TestMaps, prepare_test
-from posevote.scoring.score import density_at, phi_at
+from posevote.scoring.score import density_at, phi_at, place_features
 
 #: The most views of one instance each view is compared with (evenly spaced among its
 #: views where it has more): by hand, so that the time grows with the views, not with their
@@ -89,11 +89,19 @@ def view_lookalikes(xy: NDArray[np.float64], theta: NDArray[np.float64],
     for v in range(k):
         own[members[v]] = density_at(view_map(v), placed[members[v]], theta[members[v]])
 
+    # Every view's maps share one grid: the points placed on it (and their orientation bins)
+    # once.
+    grid = view_map(int(view[0]))
+    px, py, ofrac = np.empty(len(xy)), np.empty(len(xy)), np.empty(len(xy))
+    obins = np.empty((len(xy), 2), dtype=np.int64)
+    place_features(grid.frame, grid.density.shape[0], placed, theta, 0.0, 1.0, 0.0, 0.0,
+                   px, py, obins, ofrac)
+
     def shares(maps: TestMaps, views: NDArray[np.int64], out: NDArray[np.float64]) -> None:
         # out[s] = the mean share of views[s]'s edges the maps explain.
         rows = np.concatenate([members[v] for v in views])
         slots = np.repeat(np.arange(len(views)), [len(members[v]) for v in views])
-        _explained_shares(maps.density, maps.frame, placed, theta, own, rows, slots, out)
+        _explained_shares(maps.density, maps.frame, px, py, obins, ofrac, own, rows, slots, out)
         out /= counts[views]
 
     directions = viewing_direction(np.asarray(azimuth), np.asarray(elevation))
@@ -152,24 +160,14 @@ class LookalikeCollector:
 
 
 @numba.njit(cache=True, nogil=True)
-def _explained_shares(density, frame, xy, theta, own, rows, slots, out
+def _explained_shares(density, frame, px, py, obins, ofrac, own, rows, slots, out
                       ):  # pragma: no cover - compiled
-    """Add to ``out[slots[r]]``, for each point ``rows[r]``, its density on the maps over
-    ``own``, at most 1 (as :func:`~posevote.scoring.score.density_at` reads them)."""
-    n_bins = density.shape[0]
-    bin_width = np.pi / n_bins
-    inv = frame[5]
+    """Add to ``out[slots[r]]``, for each point ``rows[r]`` (placed on the grid by
+    :func:`~posevote.scoring.score.place_features`), its density on the maps over ``own``,
+    at most 1."""
     for r in range(rows.shape[0]):
         i = rows[r]
-        x = (xy[i, 0] - frame[4]) * inv
-        y = (xy[i, 1] - frame[6]) * inv
-        if x < frame[0] or y < frame[1] or x >= frame[2] or y >= frame[3]:
+        if px[i] < frame[0] or py[i] < frame[1] or px[i] >= frame[2] or py[i] >= frame[3]:
             continue
-        th = theta[i] - np.pi * np.floor(theta[i] / np.pi)
-        f = th / bin_width - 0.5
-        fb = np.floor(f)
-        b0 = int(fb)
-        if b0 < 0:
-            b0 += n_bins
-        b1 = b0 + 1 if b0 + 1 < n_bins else 0
-        out[slots[r]] += min(1.0, phi_at(density, x, y, b0, b1, f - fb) / max(own[i], 1e-12))
+        phi = phi_at(density, px[i], py[i], obins[i, 0], obins[i, 1], ofrac[i])
+        out[slots[r]] += min(1.0, phi / max(own[i], 1e-12))
