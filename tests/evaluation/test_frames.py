@@ -74,6 +74,8 @@ def test_a_run_reports_detection_calibration_and_time(coil_dir, tmp_path):
     assert summary["threshold"] == threshold > 0.0
     assert figures["false_alarms_per_empty"] == float(records[2]["score"] > threshold)
     assert "Steps: search → rerank by template" in (tmp_path / "report.md").read_text()
+    # Each frame carries how alike its model's views are to other sides.
+    assert all(0.0 <= r["object_likeness"] <= 1.0 for r in records)
 
 
 def test_the_figures_at_a_threshold():
@@ -122,6 +124,26 @@ def test_the_object_frames_by_size_and_the_wrong_poses_found():
     assert summary["ambiguous_found"] == [47] and summary["unambiguous_within_30"] == 100.0
     assert "ambiguous (a likely wrong mode" in report_text(FramesSetup(), summary)
     assert ": 47; of the other found, 100.0% within 30°." in report_text(FramesSetup(), summary)
+
+
+def test_the_objects_alike_from_every_side_are_reported_apart():
+    def rec(obj, error, likeness):
+        return {"kind": "object", "object": obj, "size": [480, 640], "scale": 1.0,
+                "score": 0.5, "iou": 0.9, "error_deg": error, "probability": 0.5,
+                "seconds": 1.0, "object_likeness": likeness}
+
+    # The ring (0.93 alike) is off by a half-turn, the box (0.4) right; a model of an
+    # earlier posevote (no likeness) counts with the others.
+    recs = [rec(47, 170.0, 0.93), rec(47, 10.0, 0.93), rec(6, 5.0, 0.4), rec(8, 50.0, None)]
+    summary = summarize(recs, 0.25)
+    assert summary["alike_objects"] == [47]
+    assert summary["defined_within_30"] == 50.0
+    assert summary["by_size"]["640x480"]["found_within_30"] == 50.0
+    assert ("(median likeness ≥ 0.8: the azimuth undefined, reported apart as in the COIL "
+            "instance protocol): 47; of the found on the other objects, 50.0% within 30°."
+            ) in report_text(FramesSetup(), summary)
+    recs[0]["object_likeness"] = recs[1]["object_likeness"] = 0.79
+    assert summarize(recs, 0.25)["alike_objects"] == []
 
 
 def test_the_command_line_runs_the_frames(monkeypatch, tmp_path, coil_dir):

@@ -51,6 +51,7 @@ from posevote.evaluation.metrics import (
 )
 from posevote.evaluation.synthetic import paste_on_clutter
 from posevote.geometry import angular_error
+from posevote.results import LOOKALIKE
 
 #: The frame sizes, (height, width) pixels: a VGA and a 720p camera.
 FRAME_SIZES: tuple[tuple[int, int], ...] = ((480, 640), (720, 1280))
@@ -217,7 +218,7 @@ def frame_record(est: PoseEstimator, item: dict[str, Any]) -> dict[str, Any]:
     seconds = time.perf_counter() - start
     rec: dict[str, Any] = {k: item[k] for k in ("object", "kind", "size", "index")}
     rec.update(truth, seconds=seconds, score=result.top_score, probability=None, iou=0.0,
-               error_deg=None)
+               error_deg=None, object_likeness=_object_likeness(est))
     best = result.best
     if best is not None:
         rec.update(probability=best.probability, ambiguous=result.ambiguous,
@@ -230,6 +231,23 @@ def frame_record(est: PoseEstimator, item: dict[str, Any]) -> dict[str, Any]:
             rec["error_deg"] = float(np.degrees(angular_error(
                 best.azimuth, np.radians(truth["truth_deg"]), period=period)))
     return rec
+
+
+def _object_likeness(est: PoseEstimator) -> float | None:
+    """The median over the model's views of how alike each is to another side
+    (``PoseModel.view_lookalike``); None for a model without it."""
+    likeness = est.model_.view_lookalike
+    if likeness is None or np.isnan(likeness).all():
+        return None
+    return float(np.nanmedian(likeness))
+
+
+def _alike_objects(records: Sequence[dict[str, Any]]) -> list[int]:
+    """The objects whose views look alike from other sides (median likeness at least
+    :data:`posevote.results.LOOKALIKE`): their azimuth is undefined, as the COIL instance
+    protocol reports them apart."""
+    return sorted({r["object"] for r in records
+                   if (r.get("object_likeness") or 0.0) >= LOOKALIKE})
 
 
 def _found(record: dict[str, Any], threshold: float) -> bool:
@@ -310,11 +328,18 @@ def summarize(records: Sequence[dict[str, Any]], threshold: float) -> dict[str, 
     found = [r for r in objects if _found(r, threshold)]
     wrong = sorted(r["object"] for r in found if r["error_deg"] >= RIGHT_DEG)
     told = [r for r in found if not r.get("ambiguous")]
+    alike = _alike_objects(records)
+    defined = [r for r in found if r["object"] not in alike]
     return {"threshold": threshold, "by_size": out, "by_object_size": bands,
             "wrong_found": wrong,
             "ambiguous_found": sorted(r["object"] for r in found if r.get("ambiguous")),
-            "unambiguous_within_30": 100 * float(np.mean([r["error_deg"] < RIGHT_DEG
-                                                          for r in told])) if told else None}
+            "unambiguous_within_30": _within(told), "alike_objects": alike,
+            "defined_within_30": _within(defined)}
+
+
+def _within(found: Sequence[dict[str, Any]]) -> float | None:
+    """The share (%) of some found frames within :data:`RIGHT_DEG` of azimuth."""
+    return 100 * float(np.mean([r["error_deg"] < RIGHT_DEG for r in found])) if found else None
 
 
 _COLUMNS = (("frames", "frames", "{}"), ("empty_frames", "empty", "{}"),
@@ -359,7 +384,12 @@ def report_text(setup: FramesSetup, summary: dict[str, Any]) -> str:
                + "Found and ambiguous (a likely wrong mode, or a view alike to another side: "
                + "the azimuth not to be trusted): " + _objects(summary["ambiguous_found"])
                + "; of the other found, " + cell(summary["unambiguous_within_30"], "{:.1f}")
-               + f"% within {RIGHT_DEG:g}°.\n")
+               + f"% within {RIGHT_DEG:g}°.\n"
+               + "Objects whose views look alike from other sides (median likeness ≥ "
+               + f"{LOOKALIKE:g}: the azimuth undefined, reported apart as in the COIL instance "
+               + "protocol): " + _objects(summary.get("alike_objects", []))
+               + "; of the found on the other objects, "
+               + cell(summary.get("defined_within_30"), "{:.1f}") + f"% within {RIGHT_DEG:g}°.\n")
     return (f"# frames: {setup.preset} preset\n\n"
             f"{len(setup.objects)} development COIL objects, each its own model (views every "
             f"20° trained); per object and frame size ({sizes}) {setup.frames} frame(s) with "
