@@ -272,7 +272,7 @@ def _score(records: Sequence[dict[str, Any]], threshold: float) -> dict[str, Any
         "false_alarms_per_empty": sum(r["score"] > threshold for r in empties)
         / max(len(empties), 1),
         "found_median_deg": float(np.median(errors)) if errors.size else None,
-        "found_within_30": 100 * float(np.mean(errors < RIGHT_DEG)) if errors.size else None,
+        "found_within_30": _within(found),
         "ece": cal["ece"], "right_of_p90": _right_above(prob, right, 0.9),
         "accuracy_at_85": 100 * accuracy_at_coverage(prob, right, 0.85),
         "seconds_median": float(np.median([r["seconds"] for r in records])),
